@@ -1,0 +1,316 @@
+"""Run configuration: one frozen dataclass per section, filled from TOML and CLI flags.
+
+A TOML file (``--config``) has the sections ``[source]``, ``[detector]`` (with
+a sub-table ``[detector.<name>]`` holding that detector's parameters),
+``[pattern]``, ``[output]`` and ``[run]``; their keys are the fields below.
+Command-line flags set the same fields and win over the file.  Unknown keys
+and bad values are rejected naming the key, the value and what is allowed.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+import types
+import typing
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import UsageError
+
+__all__ = ["SourceConfig", "DetectorConfig", "PatternConfig", "OutputConfig", "RunConfig",
+           "Config", "load_config", "build_section", "parse_param", "parse_size"]
+
+
+def parse_size(text: str, *, key: str = "size") -> tuple[int, int]:
+    """``"WxH"`` -> (width, height), both positive."""
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ValueError(f"{key}: got {text!r}, allowed WIDTHxHEIGHT, e.g. 800x600") from None
+    if w <= 0 or h <= 0:
+        raise ValueError(f"{key}: got {text!r}, allowed positive WIDTHxHEIGHT")
+    return w, h
+
+
+@dataclass(frozen=True)
+class SourceConfig:
+    """Where frames come from.
+
+    spec: ``sim``, ``camera``, ``webcam:N``, a folder of ``<int>.png`` or a video file.
+    crop: ``"X0:X1,Y0:Y1"`` region of a video file, empty for the whole frame.
+    loop: play a folder or video again from the start when it ends.
+    preset: simulator preset for ``sim``.
+    seed: random seed for ``sim``.
+    size: ``"WxH"`` for sim, camera and webcam; empty for the source's own.
+    camera_fps: frame rate asked of the camera, frames per second.
+    """
+
+    spec: str = "sim"
+    crop: str = ""
+    loop: bool = False
+    preset: str = "seed"
+    seed: int = 0
+    size: str = ""
+    camera_fps: float = 60.0
+
+    def __post_init__(self) -> None:
+        if self.size:
+            parse_size(self.size)
+        if not self.camera_fps > 0:
+            raise ValueError(f"camera_fps: got {self.camera_fps}, allowed > 0")
+        if self.seed < 0:
+            raise ValueError(f"seed: got {self.seed}, allowed >= 0")
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """name: registered detector (``antiscatter run --help`` lists them)."""
+
+    name: str = "seed"
+
+
+@dataclass(frozen=True)
+class PatternConfig:
+    """The projector image.
+
+    width, height: projector resolution in pixels (Optoma ML550: 1280x800).
+    margin: pixels added to every hole's radius.
+    mapping: (3, 3) camera-to-projector homography as nested lists; empty =
+        identity scaled from the camera size to the projector size.
+    """
+
+    width: int = 1280
+    height: int = 800
+    margin: float = 0.0
+    mapping: tuple = ()
+
+    def __post_init__(self) -> None:
+        if self.width <= 0:
+            raise ValueError(f"width: got {self.width}, allowed > 0")
+        if self.height <= 0:
+            raise ValueError(f"height: got {self.height}, allowed > 0")
+        if not math.isfinite(self.margin) or self.margin < 0:
+            raise ValueError(f"margin: got {self.margin}, allowed a number >= 0")
+        if self.mapping:
+            matrix = _as_matrix(self.mapping)
+            object.__setattr__(self, "mapping", tuple(tuple(row) for row in matrix.tolist()))
+
+    def matrix(self) -> np.ndarray | None:
+        """The mapping as a (3, 3) array, None when the default applies."""
+        return np.array(self.mapping, dtype=np.float64) if self.mapping else None
+
+
+def _as_matrix(value: Any) -> np.ndarray:
+    try:
+        matrix = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        matrix = None
+    if matrix is None or matrix.shape != (3, 3) or not np.isfinite(matrix).all():
+        raise ValueError(f"mapping: got {value!r}, allowed a 3x3 matrix of finite numbers")
+    if abs(np.linalg.det(matrix)) < 1e-12:
+        raise ValueError("mapping: the 3x3 matrix is singular; allowed an invertible homography")
+    return matrix
+
+
+@dataclass(frozen=True)
+class OutputConfig:
+    """outputs: light outputs, any of framebuffer[:/dev/fbN], window, files:PATH, none, auto."""
+
+    outputs: tuple[str, ...] = ("auto",)
+
+    def __post_init__(self) -> None:
+        if not self.outputs:
+            raise ValueError("outputs: got an empty list, allowed one or more output names")
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """The runtime loop.
+
+    frames: stop after this many frames (0 = until the source ends or a stop).
+    fps: pace the loop at this rate, frames per second (0 = as fast as possible).
+    nice: process niceness to ask for (-20 highest .. 19), None = leave it.
+    metrics: path of the per-frame metrics CSV, empty for none.
+    detections: path of the detections CSV (frame,x,y,radius), empty for none.
+    """
+
+    frames: int = 0
+    fps: float = 0.0
+    nice: int | None = None
+    metrics: str = ""
+    detections: str = ""
+
+    def __post_init__(self) -> None:
+        if self.frames < 0:
+            raise ValueError(f"frames: got {self.frames}, allowed >= 0 (0 = no limit)")
+        if not math.isfinite(self.fps) or self.fps < 0:
+            raise ValueError(f"fps: got {self.fps}, allowed >= 0 (0 = as fast as possible)")
+        if self.nice is not None and not -20 <= self.nice <= 19:
+            raise ValueError(f"nice: got {self.nice}, allowed -20..19")
+
+
+@dataclass(frozen=True)
+class Config:
+    """Everything ``antiscatter run`` needs."""
+
+    source: SourceConfig = field(default_factory=SourceConfig)
+    detector: DetectorConfig = field(default_factory=DetectorConfig)
+    detector_params: Any = None
+    pattern: PatternConfig = field(default_factory=PatternConfig)
+    output: OutputConfig = field(default_factory=OutputConfig)
+    run: RunConfig = field(default_factory=RunConfig)
+
+
+_SECTIONS = {"source": SourceConfig, "detector": DetectorConfig, "pattern": PatternConfig,
+             "output": OutputConfig, "run": RunConfig}
+
+
+def _type_name(tp: Any) -> str:
+    return {int: "an integer", float: "a number", bool: "true or false", str: "a string"}.get(
+        tp, getattr(tp, "__name__", str(tp)))
+
+
+def _coerce(value: Any, tp: Any, key: str) -> Any:
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        if value is None:
+            return None
+        return _coerce(value, args[0], key)
+    if tp is bool:
+        if isinstance(value, bool):
+            return value
+    elif tp is int:
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+    elif tp is float:
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            return float(value)
+    elif tp is str:
+        if isinstance(value, str):
+            return value
+    elif origin is tuple or tp is tuple:
+        args = typing.get_args(tp)
+        if isinstance(value, str) and args[:1] == (str,):
+            return (value,)
+        if isinstance(value, (list, tuple)):
+            if args[:1] == (str,) and not all(isinstance(v, str) for v in value):
+                raise ValueError(f"{key}: got {value!r}, allowed a list of strings")
+            return tuple(value)
+        raise ValueError(f"{key}: got {value!r}, allowed a list")
+    else:
+        return value
+    raise ValueError(f"{key}: got {value!r}, allowed {_type_name(tp)}")
+
+
+def build_section(cls: type, data: dict[str, Any], *, prefix: str) -> Any:
+    """Build dataclass ``cls`` from ``data``, rejecting unknown keys and bad values.
+
+    ``prefix`` ("detector.seed") is put before key names in messages.
+    Raises UsageError with one line naming the key, the value and what is allowed.
+    """
+    hints = typing.get_type_hints(cls)
+    known = {f.name: f for f in fields(cls)}
+    kwargs = {}
+    for key, value in data.items():
+        if key not in known:
+            raise UsageError(f"unknown key {prefix}.{key}; allowed: {', '.join(known)}")
+        try:
+            kwargs[key] = _coerce(value, hints[key], key)
+        except ValueError as exc:
+            raise UsageError(f"{prefix}.{exc}") from None
+    try:
+        return cls(**kwargs)
+    except ValueError as exc:
+        raise UsageError(f"{prefix}.{exc}") from None
+
+
+def load_config(path: str | Path | None = None, overrides: dict[str, dict[str, Any]] | None = None,
+                detector_overrides: dict[str, Any] | None = None) -> Config:
+    """Read the TOML file (if any), apply ``overrides`` per section, validate everything.
+
+    overrides: {"run": {"frames": 300}, ...} from command-line flags (None values ignored).
+    detector_overrides: parameters of the chosen detector, from ``--param KEY=VALUE``.
+    """
+    from .detection import DETECTORS
+
+    data: dict[str, Any] = {}
+    where = "config"
+    if path is not None:
+        path = Path(path)
+        where = str(path)
+        try:
+            with path.open("rb") as fh:
+                data = tomllib.load(fh)
+        except FileNotFoundError:
+            raise UsageError(f"{path}: no such config file") from None
+        except IsADirectoryError:
+            raise UsageError(f"{path}: is a folder, expected a TOML config file") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise UsageError(f"{path}: not valid TOML ({exc})") from None
+    for key, value in data.items():
+        if key not in _SECTIONS:
+            raise UsageError(f"{where}: unknown section [{key}]; allowed: {', '.join(_SECTIONS)}")
+        if not isinstance(value, dict):
+            raise UsageError(f"{where}: {key} must be a [{key}] table")
+    sections: dict[str, Any] = {}
+    raw_detector = dict(data.get("detector", {}))
+    nested = {k: raw_detector.pop(k) for k in list(raw_detector) if isinstance(raw_detector[k], dict)}
+    for name, cls in _SECTIONS.items():
+        section = dict(raw_detector if name == "detector" else data.get(name, {}))
+        for key, value in (overrides or {}).get(name, {}).items():
+            if value is not None:
+                section[key] = value
+        try:
+            sections[name] = build_section(cls, section, prefix=name)
+        except UsageError as exc:
+            raise UsageError(f"{where}: {exc}" if path is not None else str(exc)) from None
+    detector_name = sections["detector"].name
+    if detector_name not in DETECTORS:
+        raise UsageError(f"unknown detector {detector_name!r}; allowed: {', '.join(sorted(DETECTORS))}")
+    for other in nested:
+        if other not in DETECTORS:
+            raise UsageError(f"{where}: unknown section [detector.{other}]; allowed: "
+                             + ", ".join(f"detector.{n}" for n in sorted(DETECTORS)))
+    params_data = dict(nested.get(detector_name, {}))
+    params_data.update(detector_overrides or {})
+    try:
+        params = build_section(DETECTORS[detector_name].params, params_data,
+                               prefix=f"detector.{detector_name}")
+    except UsageError as exc:
+        raise UsageError(f"{where}: {exc}" if path is not None and not detector_overrides else str(exc)) from None
+    return Config(source=sections["source"], detector=sections["detector"], detector_params=params,
+                  pattern=sections["pattern"], output=sections["output"], run=sections["run"])
+
+
+def parse_param(text: str, params_cls: type, *, detector: str) -> tuple[str, Any]:
+    """``KEY=VALUE`` from ``--param`` -> (key, typed value) for ``params_cls``."""
+    key, sep, raw = text.partition("=")
+    key = key.strip().replace("-", "_")
+    known = {f.name for f in fields(params_cls)}
+    if not sep or not key:
+        raise UsageError(f"--param {text!r}: expected KEY=VALUE, e.g. threshold=180")
+    if key not in known:
+        raise UsageError(f"unknown key detector.{detector}.{key}; allowed: {', '.join(sorted(known))}")
+    tp = typing.get_type_hints(params_cls)[key]
+    raw = raw.strip()
+    try:
+        if tp is bool:
+            lowered = raw.lower()
+            if lowered not in ("true", "false", "1", "0", "yes", "no", "on", "off"):
+                raise ValueError
+            value: Any = lowered in ("true", "1", "yes", "on")
+        elif tp is int:
+            value = int(raw)
+        elif tp is float:
+            value = float(raw)
+        else:
+            value = raw
+    except ValueError:
+        raise UsageError(f"detector.{detector}.{key}: got {raw!r}, allowed {_type_name(tp)}") from None
+    return key, value
+

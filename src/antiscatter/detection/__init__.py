@@ -1,0 +1,98 @@
+"""Particle detectors, picked by name.
+
+A detector is a chain of named stages; each stage is a pure function of the
+previous stage's output, the first takes the camera frame and the last returns
+:class:`~antiscatter.detections.Detections`.  The runtime loop times every stage
+(the detector itself never reads a clock).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields, is_dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from ..detections import Detections
+
+__all__ = ["Stage", "Detector", "DETECTORS", "register_detector", "make_detector", "detect"]
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One timed step of a detector.
+
+    name: short key (``"greyscale"``); label: the words used in the metrics
+    CSV column ``"<label> Duration (s)"``; run: the pure function.
+    """
+
+    name: str
+    label: str
+    run: Callable[[Any], Any]
+
+
+@dataclass(frozen=True)
+class Detector:
+    """A named chain of stages; ``detect(frame)`` runs them untimed."""
+
+    name: str
+    stages: tuple[Stage, ...]
+    params: Any = None
+
+    def detect(self, image: np.ndarray) -> Detections:
+        """Run every stage on one frame, (H, W, 3) BGR or (H, W) grey uint8."""
+        value: Any = image
+        for stage in self.stages:
+            value = stage.run(value)
+        return value
+
+
+@dataclass(frozen=True)
+class _Entry:
+    params: type
+    build: Callable[[Any], Detector]
+    summary: str
+
+
+DETECTORS: dict[str, _Entry] = {}
+
+
+def register_detector(name: str, params: type, build: Callable[[Any], Detector],
+                      summary: str) -> None:
+    """Add a detector under ``name``; ``params`` is its frozen config dataclass."""
+    if not is_dataclass(params):
+        raise TypeError("params must be a dataclass type")
+    DETECTORS[name] = _Entry(params, build, summary)
+
+
+def make_detector(name: str, params: Any = None) -> Detector:
+    """Build the detector registered as ``name`` with its params dataclass (or defaults)."""
+    from ..errors import UsageError
+
+    try:
+        entry = DETECTORS[name]
+    except KeyError:
+        raise UsageError(f"unknown detector {name!r}; allowed: {', '.join(sorted(DETECTORS))}") from None
+    if params is None:
+        params = entry.params()
+    elif not isinstance(params, entry.params):
+        raise TypeError(f"detector {name!r} takes {entry.params.__name__}, got {type(params).__name__}")
+    return entry.build(params)
+
+
+def detect(image: np.ndarray, detector: str = "seed", **params: Any) -> Detections:
+    """Convenience: find particles in one frame with the named detector and keyword params."""
+    from ..errors import UsageError
+
+    try:
+        entry = DETECTORS[detector]
+    except KeyError:
+        raise UsageError(f"unknown detector {detector!r}; allowed: {', '.join(sorted(DETECTORS))}") from None
+    known = {f.name for f in fields(entry.params)}
+    unknown = set(params) - known
+    if unknown:
+        raise ValueError(f"detector {detector!r} has no parameter {sorted(unknown)[0]!r}; allowed: {', '.join(sorted(known))}")
+    return make_detector(detector, entry.params(**params)).detect(image)
+
+
+from . import seed as _seed  # noqa: E402,F401  (registers "seed")

@@ -1,0 +1,44 @@
+"""What every light output provides."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..detections import Detections
+from ..sources.base import Frame
+
+__all__ = ["LightOutput"]
+
+
+class LightOutput:
+    """Base of every light output.
+
+    ``show(pattern, frame, detections)`` hands one projector pattern ((H, W)
+    uint8, 255 = light) to the output; ``exit_requested`` turns true when the
+    user asked to stop from the output (``e`` in a window); ``close()`` leaves
+    files complete and devices released.  Outputs are context managers.
+    """
+
+    name: str = "output"
+    exit_requested: bool = False
+
+    def show(self, pattern: np.ndarray, frame: Frame, detections: Detections) -> None:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        pass
+
+    def __enter__(self) -> "LightOutput":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class NullOutput(LightOutput):
+    """Output ``none``: discards the pattern (benchmarks, headless runs)."""
+
+    name = "none"
+
+    def show(self, pattern: np.ndarray, frame: Frame, detections: Detections) -> None:
+        return None

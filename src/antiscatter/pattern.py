@@ -1,0 +1,84 @@
+"""The projector image: white light with black holes where the particles are."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from .detections import Detections
+
+__all__ = ["scale_mapping", "map_to_projector", "render_pattern"]
+
+_SHIFT = 4  # sub-pixel bits for cv2.circle
+_ONE = 1 << _SHIFT
+
+
+def scale_mapping(camera_size: tuple[int, int], projector_size: tuple[int, int]) -> np.ndarray:
+    """The default camera-to-projector mapping: identity scaled between the image sizes.
+
+    Sizes are (width, height) in pixels; returns a (3, 3) float64 homography.
+    """
+    sx = projector_size[0] / camera_size[0]
+    sy = projector_size[1] / camera_size[1]
+    return np.array([[sx, 0.0, 0.0], [0.0, sy, 0.0], [0.0, 0.0, 1.0]])
+
+
+def map_to_projector(detections: Detections, mapping: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Centres and radii in projector pixels under the (3, 3) homography ``mapping``.
+
+    Each radius is scaled by the square root of the homography's local area scale
+    (the Jacobian determinant at the centre), so a hole keeps the particle's area.
+    Returns ((N, 2) centres, (N,) radii).
+    """
+    n = len(detections)
+    if n == 0:
+        return np.empty((0, 2)), np.empty(0)
+    h = np.asarray(mapping, dtype=np.float64)
+    x, y = detections.centres[:, 0], detections.centres[:, 1]
+    w = h[2, 0] * x + h[2, 1] * y + h[2, 2]
+    u = (h[0, 0] * x + h[0, 1] * y + h[0, 2]) / w
+    v = (h[1, 0] * x + h[1, 1] * y + h[1, 2]) / w
+    # Jacobian of (u, v) with respect to (x, y)
+    du_dx = (h[0, 0] - u * h[2, 0]) / w
+    du_dy = (h[0, 1] - u * h[2, 1]) / w
+    dv_dx = (h[1, 0] - v * h[2, 0]) / w
+    dv_dy = (h[1, 1] - v * h[2, 1]) / w
+    scale = np.sqrt(np.abs(du_dx * dv_dy - du_dy * dv_dx))
+    return np.column_stack([u, v]), detections.radii * scale
+
+
+def render_pattern(detections: Detections, *, size: tuple[int, int] = (1280, 800),
+                   mapping: np.ndarray | None = None, margin: float = 0.0,
+                   out: np.ndarray | None = None) -> np.ndarray:
+    """Draw the projector pattern: white (255) with black filled discs at the particles.
+
+    Parameters
+    ----------
+    detections : particles in camera pixels.
+    size : projector (width, height) in pixels.
+    mapping : (3, 3) camera-to-projector homography; identity when None.
+    margin : pixels added to every hole's radius (in projector pixels).
+    out : (height, width) uint8 buffer to draw into (reused between frames).
+
+    Returns
+    -------
+    (height, width) uint8 image.
+    """
+    width, height = size
+    if out is None:
+        out = np.empty((height, width), np.uint8)
+    out.fill(255)
+    if len(detections) == 0:
+        return out
+    centres, radii = map_to_projector(detections, np.eye(3) if mapping is None else mapping)
+    cx = np.rint(centres[:, 0] * _ONE)
+    cy = np.rint(centres[:, 1] * _ONE)
+    cr = np.rint(np.maximum(radii + margin, 0.0) * _ONE)
+    # keep coordinates inside int32 for OpenCV even for wild mappings
+    limit = float(1 << 27)
+    ok = (np.abs(cx) < limit) & (np.abs(cy) < limit) & (cr < limit)
+    circle, line = cv2.circle, cv2.LINE_8
+    for x, y, r in zip(cx[ok].astype(np.int64).tolist(), cy[ok].astype(np.int64).tolist(),
+                       cr[ok].astype(np.int64).tolist()):
+        circle(out, (x, y), r, 0, -1, line, _SHIFT)
+    return out

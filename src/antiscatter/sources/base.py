@@ -1,0 +1,54 @@
+"""What every frame source provides."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Frame", "FrameSource"]
+
+
+@dataclass(frozen=True, eq=False)
+class Frame:
+    """One captured frame.
+
+    image: (H, W, 3) BGR or (H, W) grey, uint8 (may be a view into a larger buffer).
+    index: frame number from 0 in the order the source delivered them.
+    timestamp_ns: capture time on the ``time.monotonic_ns()`` clock (the sensor
+        timestamp where the camera gives one).
+    """
+
+    image: np.ndarray
+    index: int
+    timestamp_ns: int
+
+
+class FrameSource:
+    """Base of every source: ``read()`` until it returns ``None`` (the source ended).
+
+    Sources are context managers; ``close()`` releases devices and files.
+    A source that fails mid-run raises :class:`~antiscatter.errors.UsageError`
+    (bad data) or ``RuntimeError`` (device failure) naming the frame.
+    """
+
+    name: str = "source"
+    size: tuple[int, int] = (0, 0)  # (width, height) of delivered frames
+    fps: float = 0.0  # nominal rate, 0 when unknown
+
+    def read(self) -> Frame | None:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        pass
+
+    def __enter__(self) -> "FrameSource":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @staticmethod
+    def now_ns() -> int:
+        return time.monotonic_ns()

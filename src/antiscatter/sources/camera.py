@@ -1,0 +1,77 @@
+"""The Raspberry Pi camera through Picamera2 (``camera``), imported lazily.
+
+Picamera2 is not usable from PyPI off the Pi: on Raspberry Pi OS it is the
+``python3-picamera2`` package, seen from a virtual environment made with
+``--system-site-packages``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+from ..errors import UsageError
+from .base import Frame, FrameSource
+
+__all__ = ["CameraSource", "load_picamera2"]
+
+
+def load_picamera2() -> Callable[[], Any]:
+    """The ``Picamera2`` class, or a one-line UsageError off the Pi."""
+    try:
+        from picamera2 import Picamera2  # type: ignore[import-not-found]
+    except ImportError:
+        raise UsageError("source 'camera' needs the picamera2 package on a Raspberry Pi "
+                         "(sudo apt install python3-picamera2, and a venv made with "
+                         "--system-site-packages); use sim, webcam:N, a folder or a video here") from None
+    return Picamera2
+
+
+class CameraSource(FrameSource):
+    """ISP-processed BGR frames from the Pi camera.
+
+    size: (width, height), default (728, 544) = half the IMX296 sensor, as in the report.
+    fps: frame rate, set explicitly through ``FrameDurationLimits`` (a video
+        configuration otherwise defaults to 30 fps).
+    picamera2: the Picamera2 class (tests pass a fake); loaded lazily when None.
+
+    Frames carry the sensor timestamp (``SensorTimestamp`` metadata, ns, on the
+    ``CLOCK_MONOTONIC`` clock) when the camera reports one.
+    """
+
+    name = "camera"
+
+    def __init__(self, *, size: tuple[int, int] = (728, 544), fps: float = 60.0,
+                 picamera2: Callable[[], Any] | None = None) -> None:
+        factory = picamera2 or load_picamera2()
+        try:
+            self._cam = factory()
+        except (RuntimeError, IndexError, OSError) as exc:
+            raise UsageError(f"source 'camera': no camera could be opened ({exc})") from None
+        frame_us = int(round(1e6 / fps))
+        # Picamera2's "RGB888" is stored B, G, R per pixel: OpenCV's BGR order.
+        config = self._cam.create_video_configuration(
+            main={"size": tuple(size), "format": "RGB888"}, buffer_count=3, queue=False,
+            controls={"FrameDurationLimits": (frame_us, frame_us)})
+        self._cam.configure(config)
+        self._cam.start()
+        self.size = (int(size[0]), int(size[1]))
+        self.fps = float(fps)
+        self._count = 0
+
+    def read(self) -> Frame | None:
+        request = self._cam.capture_request()
+        try:
+            image = request.make_array("main")
+            metadata = request.get_metadata()
+        finally:
+            request.release()
+        stamp = metadata.get("SensorTimestamp")
+        frame = Frame(image, self._count, int(stamp) if stamp else self.now_ns())
+        self._count += 1
+        return frame
+
+    def close(self) -> None:
+        try:
+            self._cam.stop()
+        finally:
+            self._cam.close()
