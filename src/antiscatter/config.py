@@ -110,7 +110,8 @@ def _as_matrix(value: Any) -> np.ndarray:
     except (TypeError, ValueError):
         matrix = None
     if matrix is None or matrix.shape != (3, 3) or not np.isfinite(matrix).all():
-        raise ValueError(f"mapping: got {value!r}, allowed a 3x3 matrix of finite numbers")
+        shown = list(value) if isinstance(value, tuple) else value
+        raise ValueError(f"mapping: got {shown!r}, allowed a 3x3 matrix of finite numbers")
     if abs(np.linalg.det(matrix)) < 1e-12:
         raise ValueError("mapping: the 3x3 matrix is singular; allowed an invertible homography")
     return matrix

@@ -1,0 +1,82 @@
+"""Shared helpers: frames with known particles, small videos, the CLI in-process."""
+
+from __future__ import annotations
+
+import io
+import sys
+from contextlib import redirect_stderr, redirect_stdout
+from fractions import Fraction
+from pathlib import Path
+from typing import Iterable
+
+import cv2
+import numpy as np
+import pytest
+
+
+def draw_discs(size: tuple[int, int], discs: Iterable[tuple[float, float, float]], *,
+               background: int = 0, value: int = 255) -> np.ndarray:
+    """(H, W, 3) BGR frame with filled discs (x, y, r) drawn at sub-pixel precision."""
+    width, height = size
+    image = np.full((height, width, 3), background, np.uint8)
+    for x, y, r in discs:
+        cv2.circle(image, (round(x * 16), round(y * 16)), round(r * 16), (value,) * 3, -1, cv2.LINE_8, 4)
+    return image
+
+
+def write_ffv1(path: Path, frames: list[np.ndarray], fps: int = 30) -> None:
+    """Write BGR frames losslessly (FFV1, bgr0) with PyAV."""
+    import av
+
+    with av.open(str(path), mode="w", format="matroska") as container:
+        stream = container.add_stream("ffv1", rate=Fraction(fps))
+        stream.width, stream.height = frames[0].shape[1], frames[0].shape[0]
+        stream.pix_fmt = "bgr0"
+        for image in frames:
+            frame = av.VideoFrame.from_ndarray(image, format="bgr24")
+            for packet in stream.encode(frame):
+                container.mux(packet)
+        for packet in stream.encode(None):
+            container.mux(packet)
+
+
+def numbered_frames(count: int, size: tuple[int, int] = (64, 48)) -> list[np.ndarray]:
+    """Frames whose pixels encode their index and position (exact round trips)."""
+    width, height = size
+    yy, xx = np.mgrid[0:height, 0:width]
+    frames = []
+    for i in range(count):
+        image = np.empty((height, width, 3), np.uint8)
+        image[..., 0] = (xx * 3 + i) % 256
+        image[..., 1] = (yy * 5) % 256
+        image[..., 2] = i * 10 % 256
+        frames.append(image)
+    return frames
+
+
+class CliResult:
+    def __init__(self, code: int, out: str, err: str) -> None:
+        self.code, self.out, self.err = code, out, err
+
+
+def run_cli(*args: str) -> CliResult:
+    """Call ``antiscatter`` in-process; returns exit code, stdout and stderr."""
+    from antiscatter.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with redirect_stdout(out), redirect_stderr(err):
+        try:
+            code = main(list(args))
+        except SystemExit as exc:
+            code = int(exc.code or 0)
+    return CliResult(code, out.getvalue(), err.getvalue())
+
+
+@pytest.fixture
+def cli():
+    return run_cli
+
+
+@pytest.fixture
+def python() -> str:
+    return sys.executable

@@ -1,0 +1,75 @@
+import cv2
+import numpy as np
+import pytest
+
+from antiscatter.errors import UsageError
+from antiscatter.sources import FolderSource, list_frames, open_source
+from conftest import numbered_frames
+
+
+def _write(folder, names_and_frames):
+    for name, image in names_and_frames:
+        cv2.imwrite(str(folder / name), image)
+
+
+def test_natural_order_and_other_files_ignored(tmp_path):
+    frames = numbered_frames(4)
+    _write(tmp_path, [("10.png", frames[3]), ("2.png", frames[1]), ("1.png", frames[0]),
+                      ("3.png", frames[2])])
+    (tmp_path / "notes.txt").write_text("x")
+    (tmp_path / "a.png").write_bytes(b"not a frame name")
+    (tmp_path / "5.jpg").write_bytes(b"")
+    assert [p.name for p in list_frames(tmp_path)] == ["1.png", "2.png", "3.png", "10.png"]
+    source = open_source(str(tmp_path))
+    assert isinstance(source, FolderSource)
+    read = []
+    while (frame := source.read()) is not None:
+        read.append(frame)
+    assert [f.index for f in read] == [0, 1, 2, 3]
+    for frame, expected in zip(read, frames):
+        np.testing.assert_array_equal(frame.image, expected)
+    assert source.size == (64, 48)
+
+
+def test_loop_restarts(tmp_path):
+    frames = numbered_frames(2)
+    _write(tmp_path, [("0.png", frames[0]), ("1.png", frames[1])])
+    source = FolderSource(tmp_path, loop=True)
+    images = [source.read().image for _ in range(5)]
+    np.testing.assert_array_equal(images[2], frames[0])
+    np.testing.assert_array_equal(images[3], frames[1])
+
+
+def test_empty_folder(tmp_path):
+    (tmp_path / "readme.txt").write_text("x")
+    with pytest.raises(UsageError, match=r"no frames named <int>\.png in this folder"):
+        open_source(str(tmp_path))
+
+
+def test_png_that_is_not_an_image(tmp_path):
+    (tmp_path / "0.png").write_bytes(b"this is text")
+    with pytest.raises(UsageError, match=r"0\.png: not a readable PNG image"):
+        open_source(str(tmp_path))
+
+
+def test_bad_frame_in_the_middle_names_the_file(tmp_path):
+    frames = numbered_frames(1)
+    _write(tmp_path, [("0.png", frames[0])])
+    (tmp_path / "1.png").write_bytes(b"broken")
+    source = FolderSource(tmp_path)
+    assert source.read() is not None
+    with pytest.raises(UsageError, match=r"1\.png: not a readable PNG image"):
+        source.read()
+
+
+def test_frame_of_other_size_rejected(tmp_path):
+    _write(tmp_path, [("0.png", numbered_frames(1)[0]), ("1.png", numbered_frames(1, (32, 32))[0])])
+    source = FolderSource(tmp_path)
+    source.read()
+    with pytest.raises(UsageError, match=r"1\.png: size 32x32 differs from the first frame's 64x48"):
+        source.read()
+
+
+def test_missing_path():
+    with pytest.raises(UsageError, match=r"source 'no/such/dir': no such file or folder; allowed: sim, camera"):
+        open_source("no/such/dir")

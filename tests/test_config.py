@@ -1,0 +1,92 @@
+import numpy as np
+import pytest
+
+from antiscatter.config import Config, load_config, parse_param
+from antiscatter.detection.seed import SeedParams
+from antiscatter.errors import UsageError
+
+
+def write(tmp_path, text):
+    path = tmp_path / "run.toml"
+    path.write_text(text)
+    return path
+
+
+def test_defaults():
+    config = load_config()
+    assert isinstance(config, Config)
+    assert config.source.spec == "sim"
+    assert config.detector.name == "seed"
+    assert config.detector_params == SeedParams()
+    assert (config.pattern.width, config.pattern.height) == (1280, 800)
+    assert config.output.outputs == ("auto",)
+
+
+def test_toml_fills_every_section_and_flags_win(tmp_path):
+    path = write(tmp_path, """
+[source]
+spec = "frames"
+loop = true
+[detector]
+name = "seed"
+[detector.seed]
+threshold = 180
+equalise = false
+[pattern]
+width = 640
+height = 400
+margin = 2
+mapping = [[2, 0, 1], [0, 2, 0], [0, 0, 1]]
+[output]
+outputs = ["none", "files:x.mkv"]
+[run]
+frames = 10
+fps = 30
+""")
+    config = load_config(path, {"run": {"frames": 20, "fps": None}})
+    assert config.source.spec == "frames" and config.source.loop is True
+    assert config.detector_params.threshold == 180
+    assert config.pattern.margin == 2.0
+    np.testing.assert_array_equal(config.pattern.matrix(), [[2, 0, 1], [0, 2, 0], [0, 0, 1]])
+    assert config.output.outputs == ("none", "files:x.mkv")
+    assert config.run.frames == 20 and config.run.fps == 30.0
+
+
+@pytest.mark.parametrize("text, message", [
+    ("[run]\nframez = 3\n", "run.toml: unknown key run.framez; allowed: frames, fps, nice, metrics, detections"),
+    ("[run]\nframes = 'ten'\n", "run.toml: run.frames: got 'ten', allowed an integer"),
+    ("[run]\nframes = -1\n", "run.toml: run.frames: got -1, allowed >= 0 (0 = no limit)"),
+    ("[run]\nnice = -40\n", "run.toml: run.nice: got -40, allowed -20..19"),
+    ("[source]\nloop = 1\n", "run.toml: source.loop: got 1, allowed true or false"),
+    ("[source]\nsize = '800by600'\n", "run.toml: source.size: got '800by600', allowed WIDTHxHEIGHT, e.g. 800x600"),
+    ("[pattern]\nmapping = [[1, 0], [0, 1]]\n", "run.toml: pattern.mapping: got [[1, 0], [0, 1]], allowed a 3x3 matrix of finite numbers"),
+    ("[pattern]\nmargin = -1\n", "run.toml: pattern.margin: got -1.0, allowed a number >= 0"),
+    ("[detector.seed]\nthreshold = 300\n", "run.toml: detector.seed.threshold: got 300, allowed 0..255"),
+    ("[detector.seed]\ncolour = 1\n", "run.toml: unknown key detector.seed.colour; allowed: threshold, blur_kernel, canny_sigma, equalise"),
+    ("[detector.fancy]\nx = 1\n", "run.toml: unknown section [detector.fancy]; allowed: detector.seed"),
+    ("[detector]\nname = 'fancy'\n", "unknown detector 'fancy'; allowed: seed"),
+    ("[lamp]\nx = 1\n", "run.toml: unknown section [lamp]; allowed: source, detector, pattern, output, run"),
+    ("[run\n", "run.toml: not valid TOML"),
+])
+def test_bad_config_rejected_with_key_value_and_allowed(tmp_path, text, message):
+    path = write(tmp_path, text)
+    with pytest.raises(UsageError) as info:
+        load_config(path)
+    assert str(info.value).replace(str(tmp_path) + "/", "").startswith(message)
+
+
+def test_missing_config_file(tmp_path):
+    with pytest.raises(UsageError, match="nope.toml: no such config file"):
+        load_config(tmp_path / "nope.toml")
+
+
+def test_parse_param_types():
+    assert parse_param("threshold=180", SeedParams, detector="seed") == ("threshold", 180)
+    assert parse_param("equalise=true", SeedParams, detector="seed") == ("equalise", True)
+    assert parse_param("canny-sigma=0.33", SeedParams, detector="seed") == ("canny_sigma", 0.33)
+    with pytest.raises(UsageError, match="detector.seed.threshold: got 'high', allowed an integer"):
+        parse_param("threshold=high", SeedParams, detector="seed")
+    with pytest.raises(UsageError, match="unknown key detector.seed.speed"):
+        parse_param("speed=3", SeedParams, detector="seed")
+    with pytest.raises(UsageError, match="expected KEY=VALUE"):
+        parse_param("threshold", SeedParams, detector="seed")
