@@ -1,0 +1,187 @@
+"""``antiscatter run`` end to end, bad input, and clean stops on signals."""
+
+import csv
+import signal
+import subprocess
+import sys
+import time
+
+import av
+import cv2
+import numpy as np
+import pytest
+
+from conftest import draw_discs, numbered_frames, write_ffv1
+
+
+def antiscatter(*args, cwd=None, timeout=120):
+    return subprocess.run([sys.executable, "-m", "antiscatter", *args], capture_output=True,
+                          text=True, cwd=cwd, timeout=timeout)
+
+
+def test_help_is_useful(cli):
+    result = cli("--help")
+    assert result.code == 0 and "run" in result.out
+    result = cli("run", "--help")
+    assert result.code == 0
+    for flag in ("--crop", "--loop", "--detector", "--output", "--metrics", "--detections",
+                 "--frames", "--fps", "--nice", "--config", "framebuffer"):
+        assert flag in result.out
+
+
+def test_run_on_the_builtin_simulator(tmp_path):
+    result = antiscatter("run", "--frames", "300", "--output", "none", "--metrics", "m.csv",
+                         "--detections", "d.csv", cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    rows = list(csv.reader((tmp_path / "m.csv").open()))
+    assert len(rows) == 301
+    assert rows[0][:2] == ["Capture Duration (s)", "Greyscale Conversion Duration (s)"]
+    det = list(csv.DictReader((tmp_path / "d.csv").open()))
+    assert len(det) > 1000
+    assert "frames: 300 (frame limit 300)" in result.stdout
+    assert "Canny Algorithm" in result.stdout
+
+
+def test_run_on_a_frame_folder_finds_the_drawn_particles(tmp_path, cli):
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    discs = [(30.0, 40.0, 5.0), (100.0, 60.0, 8.0)]
+    for i in range(3):
+        moved = [(x + 3 * i, y, r) for x, y, r in discs]
+        cv2.imwrite(str(frames / f"{i}.png"), draw_discs((160, 120), moved))
+    result = cli("run", str(frames), "--output", "none", "--detections", str(tmp_path / "d.csv"),
+                 "--output", f"files:{tmp_path / 'pat'}")
+    assert result.code == 0, result.err
+    rows = list(csv.DictReader((tmp_path / "d.csv").open()))
+    assert len(rows) == 6
+    for row in rows:
+        i = int(row["frame"])
+        x, y, r = float(row["x"]), float(row["y"]), float(row["radius"])
+        assert min(np.hypot(x - (dx + 3 * i), y - dy) for dx, dy, _ in discs) < 1.0
+    pattern = cv2.imread(str(tmp_path / "pat" / "0.png"), cv2.IMREAD_UNCHANGED)
+    assert pattern.shape == (800, 1280)
+    # default mapping scales 160x120 to 1280x800: particle (30, 40) -> (240, 266.7), black
+    assert pattern[267, 240] == 0 and pattern[10, 10] == 255
+
+
+def test_run_on_a_video_with_crop_and_loop(tmp_path, cli):
+    frames = [draw_discs((200, 100), [(150.0, 50.0, 6.0), (20.0, 50.0, 6.0)]) for _ in range(4)]
+    video = tmp_path / "clip.mkv"
+    write_ffv1(video, frames)
+    result = cli("run", str(video), "--crop", "100:200,0:100", "--loop", "--frames", "10",
+                 "--output", "none", "--detections", str(tmp_path / "d.csv"))
+    assert result.code == 0, result.err
+    rows = list(csv.DictReader((tmp_path / "d.csv").open()))
+    assert len(rows) == 10  # one particle inside the crop, ten frames thanks to --loop
+    assert all(abs(float(r["x"]) - 50) < 1 and abs(float(r["y"]) - 50) < 1 for r in rows)
+
+
+def test_config_file_and_param(tmp_path, cli):
+    config = tmp_path / "run.toml"
+    config.write_text('[run]\nframes = 5\n[output]\noutputs = ["none"]\n[detector.seed]\nthreshold = 100\n')
+    result = cli("run", "--config", str(config), "-p", "equalise=true",
+                 "--metrics", str(tmp_path / "m.csv"))
+    assert result.code == 0, result.err
+    rows = list(csv.DictReader((tmp_path / "m.csv").open()))
+    assert len(rows) == 5
+    assert all(float(r["Histogram Equalisation Duration (s)"]) > 0 for r in rows)
+    assert all(float(r["Binary Thresholding Duration (s)"]) == 0 for r in rows)
+
+
+def _bad_inputs(tmp_path):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    notimg = tmp_path / "notimg"
+    notimg.mkdir()
+    (notimg / "0.png").write_text("hello")
+    junk = tmp_path / "junk.mp4"
+    junk.write_bytes(b"\x00\x01" * 64)
+    video = tmp_path / "v.mkv"
+    write_ffv1(video, numbered_frames(2, (64, 48)))
+    badkey = tmp_path / "bad.toml"
+    badkey.write_text("[run]\nspeed = 3\n")
+    badtype = tmp_path / "badtype.toml"
+    badtype.write_text("[pattern]\nwidth = 'wide'\n")
+    return [
+        (["run", str(tmp_path / "missing")], "no such file or folder"),
+        (["run", str(empty)], "no frames named <int>.png"),
+        (["run", str(notimg)], "0.png: not a readable PNG image"),
+        (["run", str(junk)], "junk.mp4: cannot be"),
+        (["run", str(video), "--crop", "0:100,0:10"], "outside the 64x48 frame"),
+        (["run", "--detector", "magic"], "unknown detector 'magic'; allowed: seed"),
+        (["run", "webcam:x"], "expected webcam:N"),
+        (["run", "--output", "laser"], "unknown output 'laser'"),
+        (["run", "--config", str(badkey)], "unknown key run.speed; allowed: frames"),
+        (["run", "--config", str(badtype)], "pattern.width: got 'wide', allowed an integer"),
+        (["run", "--frames", "-3"], "run.frames: got -3, allowed >= 0"),
+        (["run", "--frames", "many"], "argument --frames: invalid int value: 'many'"),
+        (["run", "-p", "threshold=999"], "detector.seed.threshold: got 999, allowed 0..255"),
+        (["run", "--size", "0x10"], "source.size: got '0x10', allowed positive WIDTHxHEIGHT"),
+        (["run", "--metrics", str(tmp_path / "no" / "m.csv"), "--output", "none"], "does not exist"),
+        (["run", "--mapping", str(badkey)], "--mapping"),
+        (["run", "--preset", "storm"], "unknown preset 'storm'"),
+        (["run", "camera", "--output", "none"], None),  # on the Pi it may open; off it, exit 2
+    ]
+
+
+def test_bad_inputs_exit_2_with_one_line(tmp_path, cli):
+    for args, expected in _bad_inputs(tmp_path):
+        result = cli(*args)
+        if expected is None:
+            try:
+                import picamera2  # noqa: F401
+                continue
+            except ImportError:
+                expected = "source 'camera' needs the picamera2 package on a Raspberry Pi"
+        assert result.code == 2, (args, result.err)
+        lines = result.err.strip().splitlines()
+        assert len(lines) == 1, (args, result.err)
+        assert expected in lines[0], (args, lines[0])
+        assert lines[0].startswith("antiscatter")
+
+
+def test_bad_input_in_a_fresh_process_has_no_traceback(tmp_path):
+    result = antiscatter("run", str(tmp_path / "missing"))
+    assert result.returncode == 2
+    assert "Traceback" not in result.stderr
+    assert result.stderr.count("\n") == 1
+
+
+def test_source_failing_mid_run_keeps_files_valid(tmp_path):
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(frames / f"{i}.png"), draw_discs((64, 48), [(20, 20, 4)]))
+    (frames / "3.png").write_text("corrupt")
+    result = antiscatter("run", str(frames), "--output", "none", "--output", "files:p.mkv",
+                         "--metrics", "m.csv", cwd=tmp_path)
+    assert result.returncode == 2
+    assert "3.png: not a readable PNG image" in result.stderr
+    assert len(list(csv.reader((tmp_path / "m.csv").open()))) == 4
+    with av.open(str(tmp_path / "p.mkv")) as container:
+        assert sum(1 for _ in container.decode(video=0)) == 3
+
+
+@pytest.mark.parametrize("signum, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_signal_stops_cleanly_with_complete_files(tmp_path, signum, code):
+    proc = subprocess.Popen([sys.executable, "-m", "antiscatter", "run", "--output", "files:p.mkv",
+                             "--metrics", "m.csv", "--detections", "d.csv", "--fps", "100"],
+                            cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    metrics = tmp_path / "m.csv"
+    while time.monotonic() < deadline:
+        if metrics.exists() and metrics.stat().st_size > 4096:
+            break
+        time.sleep(0.05)
+    proc.send_signal(signum)
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == code, err
+    assert f"stopped by {signal.Signals(signum).name}" in out
+    rows = list(csv.reader(metrics.open()))
+    frames = len(rows) - 1
+    assert frames > 5 and all(len(r) == len(rows[0]) for r in rows)
+    with av.open(str(tmp_path / "p.mkv")) as container:
+        decoded = sum(1 for _ in container.decode(video=0))
+    assert decoded == frames
+    det = (tmp_path / "d.csv").read_text()
+    assert det.endswith("\n")
