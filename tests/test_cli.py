@@ -140,11 +140,18 @@ def test_bad_inputs_exit_2_with_one_line(tmp_path, cli):
         assert lines[0].startswith("antiscatter")
 
 
-def test_bad_input_in_a_fresh_process_has_no_traceback(tmp_path):
-    result = antiscatter("run", str(tmp_path / "missing"))
+@pytest.mark.parametrize("source, message", [
+    ("missing", "no such file or folder"),
+    ("junk.avi", "junk.avi: cannot be"),
+    ("webcam:63", "webcam:63: no capture device 63 could be opened"),
+])
+def test_bad_input_in_a_fresh_process_is_one_line_without_traceback(tmp_path, source, message):
+    (tmp_path / "junk.avi").write_bytes(b"RIFF" + b"\x00" * 60)
+    result = antiscatter("run", source, "--output", "none", cwd=tmp_path)
     assert result.returncode == 2
     assert "Traceback" not in result.stderr
-    assert result.stderr.count("\n") == 1
+    assert result.stderr.count("\n") == 1, result.stderr
+    assert message in result.stderr
 
 
 def test_source_failing_mid_run_keeps_files_valid(tmp_path):

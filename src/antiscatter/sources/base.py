@@ -3,11 +3,26 @@
 from __future__ import annotations
 
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
+from typing import Iterator
 
+import cv2
 import numpy as np
 
-__all__ = ["Frame", "FrameSource"]
+__all__ = ["Frame", "FrameSource", "quiet_opencv"]
+
+
+@contextmanager
+def quiet_opencv() -> Iterator[None]:
+    """Silence OpenCV's own warnings (device probing) so errors stay one line."""
+    logging = cv2.utils.logging
+    previous = logging.getLogLevel()
+    logging.setLogLevel(logging.LOG_LEVEL_ERROR)
+    try:
+        yield
+    finally:
+        logging.setLogLevel(previous)
 
 
 @dataclass(frozen=True, eq=False)

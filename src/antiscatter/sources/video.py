@@ -7,7 +7,7 @@ from pathlib import Path
 import cv2
 
 from ..errors import UsageError
-from .base import Frame, FrameSource
+from .base import Frame, FrameSource, quiet_opencv
 
 __all__ = ["VideoSource", "Crop", "parse_crop"]
 
@@ -60,7 +60,8 @@ class VideoSource(FrameSource):
         self._decoded_this_pass = 0
 
     def _open(self) -> cv2.VideoCapture:
-        cap = cv2.VideoCapture(str(self.path), cv2.CAP_FFMPEG)
+        with quiet_opencv():
+            cap = cv2.VideoCapture(str(self.path), cv2.CAP_FFMPEG)
         if not cap.isOpened():
             raise UsageError(f"{self.path}: cannot be opened as a video")
         return cap

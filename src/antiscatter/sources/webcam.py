@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 
 from ..errors import UsageError
-from .base import Frame, FrameSource
+from .base import Frame, FrameSource, quiet_opencv
 
 __all__ = ["WebcamSource"]
 
@@ -17,7 +17,8 @@ class WebcamSource(FrameSource):
 
     def __init__(self, index: int, *, size: tuple[int, int] | None = None) -> None:
         self.index = index
-        self._cap = cv2.VideoCapture(index)
+        with quiet_opencv():
+            self._cap = cv2.VideoCapture(index)
         if not self._cap.isOpened():
             raise UsageError(f"webcam:{index}: no capture device {index} could be opened")
         if size is not None:
