@@ -44,18 +44,41 @@ PRESETS: dict[str, _Preset] = {}
 
 
 def make_scene(preset: str, *, rng: np.random.Generator,
-               size: tuple[int, int] | None = None) -> Scene:
-    """Build the preset's scene at ``size`` (width, height; the preset's own by default)."""
+               size: tuple[int, int] | None = None, background: str | None = None) -> Scene:
+    """Build the preset's scene at ``size`` (width, height; the preset's own by default).
+
+    background: a path to an image or video replacing a realistic preset's background.
+    """
     from ..errors import UsageError
 
     try:
         entry = PRESETS[preset]
     except KeyError:
         raise UsageError(f"unknown preset {preset!r}; allowed: {', '.join(sorted(PRESETS))}") from None
+    if background is not None:
+        if preset == "seed":
+            raise UsageError("--background applies to the realistic presets, not to 'seed' (white on black)")
+        from dataclasses import replace
+        from .background import load_background
+        load_background(background, (8, 8))  # fail early with a clear message
+        config = replace(_REALISTIC[preset][0], background=str(background))
+        return _RealisticScene(config, size=size or entry.default_size, rng=rng)
     return entry.build(size=size or entry.default_size, rng=rng)
 
 
 from . import report as _report  # noqa: E402
+from .presets import REALISTIC as _REALISTIC  # noqa: E402
+from .scene import RealisticScene as _RealisticScene  # noqa: E402
 
 PRESETS["seed"] = _Preset(_report.ReportBubbles, (800, 600),
                           "the 2024 report's model: 300 white circles rising on black")
+
+
+def _realistic(config):
+    def build(*, size: tuple[int, int], rng: np.random.Generator) -> Scene:
+        return _RealisticScene(config, size=size, rng=rng)
+    return build
+
+
+for _name, (_config, _size, _summary) in _REALISTIC.items():
+    PRESETS[_name] = _Preset(_realistic(_config), _size, _summary)

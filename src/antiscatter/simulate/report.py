@@ -94,25 +94,33 @@ class ReportBubbles:
                 setattr(self, name, getattr(self, name)[keep])
         self._spawn(self.count - len(self.ids))
 
-    def render(self, out: np.ndarray | None = None) -> np.ndarray:
-        """The frame: (H, W, 3) uint8, white filled circles on black."""
+    def render(self, labels: np.ndarray | None = None) -> np.ndarray:
+        """The frame: (H, W, 3) uint8, white filled circles on black.
+
+        labels: optional (H, W) uint16 buffer filled with each particle's mask
+            label (its row number in :meth:`truth` + 1; a later particle covers
+            an earlier one where they overlap), 0 elsewhere.
+        """
         width, height = self.size
-        if out is None:
-            out = np.zeros((height, width, 3), np.uint8)
-        else:
-            out[...] = 0
+        out = np.zeros((height, width, 3), np.uint8)
         cx = np.rint(self.x * _ONE).astype(np.int64).tolist()
         cy = np.rint(self.y * _ONE).astype(np.int64).tolist()
         cr = np.rint(self.r * _ONE).astype(np.int64).tolist()
         circle, white, line = cv2.circle, (255, 255, 255), cv2.LINE_8
         for x, y, r in zip(cx, cy, cr):
             circle(out, (x, y), r, white, -1, line, _SHIFT)
+        if labels is not None:
+            labels.fill(0)
+            for label, (x, y, r) in enumerate(zip(cx, cy, cr), start=1):
+                circle(labels, (x, y), r, label, -1, line, _SHIFT)
         return out
 
     def truth(self) -> Truth:
-        """Ids, centres, radii and the visible share of each disc."""
+        """Ids, centres, radii and the share of each disc inside the frame."""
+        n = len(self.ids)
         return Truth(self.ids.copy(), np.column_stack([self.x, self.y]), self.r.copy(),
-                     disc_visibility(self.x, self.y, self.r, self.size))
+                     disc_visibility(self.x, self.y, self.r, self.size),
+                     peaks=np.full(n, 255.0))
 
 
 def disc_visibility(x: np.ndarray, y: np.ndarray, r: np.ndarray,
