@@ -172,12 +172,14 @@ def _open_source(config: Config) -> FrameSource:
                        size=size, fps=sc.camera_fps)
 
 
-def run(config: Config, *, log: TextIO = sys.stderr, out: TextIO = sys.stdout) -> RunSummary:
+def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None) -> RunSummary:
     """Run the cancellation loop until the frame limit, the source's end, ``e`` or a signal.
 
     Every file is complete and valid however the run ends. Returns the summary
     (also printed to ``out``); bad input raises UsageError.
     """
+    log = log or sys.stderr
+    out = out or sys.stdout
     detector = make_detector(config.detector.name, config.detector_params)
     rc = config.run
     if rc.nice is not None:

@@ -31,13 +31,13 @@ def bubble_templates(rng: np.random.Generator, count: int = 4) -> list[np.ndarra
     out = []
     for _ in range(count):
         rim_width = rng.uniform(0.08, 0.16)
-        interior = rng.uniform(0.15, 0.35)
+        interior = rng.uniform(0.35, 0.5)
         hx, hy = rng.uniform(-0.45, -0.2), rng.uniform(-0.45, -0.2)
         spot = rng.uniform(0.10, 0.18)
         rim = np.exp(-((rho - (1.0 - rim_width)) / rim_width) ** 2)
         body = np.where(rho <= 1.0, interior, 0.0)
-        highlight = 1.4 * np.exp(-(((xx / RADIUS - hx) ** 2 + (yy / RADIUS - hy) ** 2) / (2 * spot ** 2)))
-        t = np.maximum(rim, body) + highlight * (rho <= 1.0)
+        highlight = 0.6 * np.exp(-(((xx / RADIUS - hx) ** 2 + (yy / RADIUS - hy) ** 2) / (2 * spot ** 2)))
+        t = np.maximum(rim, body + highlight) * (rho <= 1.0)
         t = np.where(rho <= 1.05, t, 0.0).astype(np.float32)
         out.append(t / t.max())
     return out

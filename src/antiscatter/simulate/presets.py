@@ -4,7 +4,7 @@ Particle populations are modelled on what a lamp-lit camera sees 0.3-2.5 m in
 front of an underwater vehicle: bubbles 1-4 mm in radius rising at 0.15-0.3 m/s
 (and wobbling); marine snow flakes 0.5-4 mm, dim and semi-transparent, sinking
 at 1-3 cm/s in a drifting current; sand grains 0.2-0.8 mm thrown across the view
-at 0.3-1 m/s by a thruster wash.
+at 0.3-1 m/s by a thruster wash (albedo above 1: quartz grains glint).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ SNOW = KindConfig(count=250, size_mm=(0.5, 4.0), depth_m=(0.3, 2.0), speed=(0.01
                   direction_deg=90.0, spread_deg=30.0, albedo=(0.25, 0.6), colour=(0.8, 0.95, 1.0),
                   wobble=0.01, wobble_hz=0.5, spin=1.5)
 SAND = KindConfig(count=250, size_mm=(0.2, 0.8), depth_m=(0.3, 1.2), speed=(0.3, 1.0),
-                  direction_deg=15.0, spread_deg=20.0, albedo=(0.6, 1.0), colour=(0.75, 0.9, 1.0))
+                  direction_deg=15.0, spread_deg=20.0, albedo=(1.5, 4.0), colour=(0.75, 0.9, 1.0))
 
 _BASE = SceneConfig()
 
