@@ -11,6 +11,9 @@ from .errors import UsageError
 
 __all__ = ["main", "build_parser"]
 
+#: The detector ``evaluate`` runs when none is named.
+DEFAULT_DETECTOR = "seed"
+
 
 class _Parser(argparse.ArgumentParser):
     """argparse with one-line errors (exit code 2) instead of usage dumps."""
@@ -100,7 +103,194 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--video", metavar="OUT.mkv", help="write frames as one lossless FFV1 video instead of PNGs")
     sim.add_argument("--overwrite", action="store_true", help="replace frames already in OUT")
     sim.add_argument("--list", action="store_true", help="list presets and catalogued scenarios, then exit")
+    ev = commands.add_parser(
+        "evaluate", help="accuracy against ground truth: precision, recall, F1, errors, cancellation",
+        description="Score detections against ground truth. Inputs, one of: --truth CSV --detections CSV; "
+                    "a simulator output FOLDER (runs --detector; pixel metrics where masks/ exist); "
+                    "--degraded/--clean real image pairs (files or folders with equal names); --scenario NAME "
+                    "(generated in memory); --catalogue (every detector on every catalogued scenario and the "
+                    "real images: writes the scoreboard).",
+        epilog="Examples:\n"
+               "  antiscatter evaluate --truth out/truth.csv --detections d.csv --json\n"
+               "  antiscatter evaluate out --detector seed --plot pr.png\n"
+               "  antiscatter evaluate --degraded ../shared/data/msrb/174710351_task1.png "
+               "--clean ../shared/data/msrb/174710351_orig.png\n"
+               "  antiscatter evaluate --catalogue --data ../shared/data --report docs/scoreboard.md",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    ev.add_argument("folder", nargs="?", help="a simulator output folder (frames, truth.csv, masks/)")
+    ev.add_argument("--truth", metavar="CSV", help="the simulator's truth.csv")
+    ev.add_argument("--detections", metavar="CSV", help="frame,x,y,radius as 'run --detections' writes")
+    ev.add_argument("--degraded", metavar="PATH", help="real image(s) with particles")
+    ev.add_argument("--clean", metavar="PATH", help="the same image(s) without particles")
+    ev.add_argument("--scenario", help="a catalogued scenario, generated in memory")
+    ev.add_argument("--catalogue", action="store_true", help="every detector on every scenario and real "
+                    "image; writes the scoreboard (--report)")
+    ev.add_argument("--catalogue-file", metavar="FILE.toml", help="scenario catalogue (default: the packaged one)")
+    ev.add_argument("--data", metavar="DIR", help="folder holding msrb/ real images (default ../shared/data "
+                    "when it exists)")
+    ev.add_argument("--report", metavar="FILE.md", default="docs/scoreboard.md", help="scoreboard path "
+                    "(default docs/scoreboard.md)")
+    ev.add_argument("--frames", type=int, help="at most N frames per scenario")
+    ev.add_argument("--bench-frames", type=int, default=100, help="frames per size for the scoreboard's "
+                    "bench table (0 = leave it out; default 100)")
+    ev.add_argument("--detector", default=None, help="detector to run (default: the default detector); "
+                    "--catalogue runs all")
+    ev.add_argument("-p", "--param", action="append", metavar="KEY=VALUE", default=[],
+                    help="a parameter of the detector; repeatable")
+    ev.add_argument("--min-gate", type=float, default=2.0, help="smallest matching distance, px (default 2)")
+    ev.add_argument("--gate-scale", type=float, default=1.0, help="matching distance as a multiple of the "
+                    "truth radius (default 1)")
+    ev.add_argument("--min-visibility", type=float, default=0.5, help="truth less visible than this is not "
+                    "counted (default 0.5)")
+    ev.add_argument("--min-snr", type=float, default=5.0, help="truth fainter than this SNR is not counted (Rose criterion) "
+                    "(default 5)")
+    ev.add_argument("--margin", type=float, default=0.0, help="pixels added to each hole for the pixel metrics")
+    ev.add_argument("--rise", type=float, default=20.0, help="real pairs: particle where max-channel "
+                    "|degraded - clean| exceeds this (default 20)")
+    ev.add_argument("--min-area", type=int, default=3, help="real pairs: smallest particle region, px (default 3)")
+    ev.add_argument("--json", action="store_true", help="print the results as JSON")
+    ev.add_argument("--csv", metavar="FILE", help="write per-frame figures")
+    ev.add_argument("--plot", metavar="FILE.png", help="precision-recall over the threshold and errors")
+
+    be = commands.add_parser(
+        "bench", help="per-stage latency of every detector, side by side (the report's table 1)",
+        description="Time every detector's stages on the same simulator frames, interleaved, at 800x600 "
+                    "and 1456x1088; report mean, sd, median, p99 and max in microseconds, throughput "
+                    "relative to seed, and the plain frame-copy floor.")
+    be.add_argument("--frames", type=int, default=200, help="frames per size (default 200)")
+    be.add_argument("--detectors", help="comma-separated names (default: all)")
+    be.add_argument("--sizes", default="800x600,1456x1088", help="frame sizes (default 800x600,1456x1088)")
+    be.add_argument("--threads", type=int, default=1, help="OpenCV threads (default 1, as one Pi core)")
+    be.add_argument("--json", action="store_true", help="print the results as JSON")
+    be.add_argument("--plot", metavar="FILE.png", help="per-stage box plot")
     return parser
+
+
+def _detector_from(args: argparse.Namespace):
+    from .config import build_section, parse_param
+    from .detection import DETECTORS, make_detector
+
+    name = args.detector or DEFAULT_DETECTOR
+    if name not in DETECTORS:
+        raise UsageError(f"unknown detector {name!r}; allowed: {', '.join(sorted(DETECTORS))}")
+    values = dict(parse_param(p, DETECTORS[name].params, detector=name) for p in args.param)
+    params = build_section(DETECTORS[name].params, values, prefix=f"detector.{name}")
+    return name, params, make_detector(name, params)
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    import json
+    from pathlib import Path
+
+    from .evaluate import Matching, evaluate_csv, evaluate_folder, evaluate_pairs, summarise
+    from .evaluate.reference import msrb_pairs, pair_files
+    from .evaluate.report import format_summary, plot_evaluation, scoreboard, sweep_detector, write_frame_csv
+    from .simulate.catalogue import load_catalogue
+
+    modes = [bool(args.truth or args.detections), bool(args.folder), bool(args.degraded or args.clean),
+             bool(args.scenario), bool(args.catalogue)]
+    if sum(modes) != 1:
+        raise UsageError("give exactly one input: --truth with --detections, a FOLDER, --degraded with "
+                         "--clean, --scenario NAME, or --catalogue")
+    if args.frames is not None and args.frames <= 0:
+        raise UsageError(f"--frames {args.frames}: allowed a positive number")
+    m = Matching(min_gate=args.min_gate, gate_scale=args.gate_scale, min_visibility=args.min_visibility,
+                 min_snr=args.min_snr, margin=args.margin)
+    title = ""
+    sweep = None
+    if args.catalogue:
+        from .detection import DETECTORS
+
+        version, scenarios = load_catalogue(args.catalogue_file)
+        data_dir = Path(args.data) if args.data else Path("../shared/data")
+        if args.data and not data_dir.is_dir():
+            raise UsageError(f"--data {data_dir}: no such folder")
+        real = msrb_pairs(data_dir / "msrb") if (data_dir / "msrb").is_dir() else []
+        detectors = [args.detector] if args.detector else list(DETECTORS)
+        bench_result = None
+        if args.bench_frames:
+            from .bench import bench
+            bench_result = bench(detectors=detectors, frames=args.bench_frames)
+        markdown, data = scoreboard(scenarios=scenarios, catalogue_version=version, detectors=detectors,
+                                    real_pairs=real, matching=m, bench_result=bench_result,
+                                    frames_limit=args.frames, log=lambda t: print(t, file=sys.stderr))
+        report = Path(args.report)
+        report.parent.mkdir(parents=True, exist_ok=True)
+        report.write_text(markdown)
+        print(json.dumps(data, indent=2) if args.json else markdown)
+        print(f"wrote {report}", file=sys.stderr)
+        return 0
+    if args.truth or args.detections:
+        if not (args.truth and args.detections):
+            raise UsageError("--truth and --detections go together")
+        scores = evaluate_csv(Path(args.truth), Path(args.detections), m)
+        title = f"{args.detections} against {args.truth}"
+    else:
+        name, params, detector = _detector_from(args)
+        if args.folder:
+            folder = Path(args.folder)
+            if not folder.is_dir():
+                raise UsageError(f"{folder}: no such folder")
+            run = lambda d: evaluate_folder(folder, d, m)  # noqa: E731
+            title = f"detector {name} on {folder}"
+        elif args.scenario:
+            from .evaluate.runs import evaluate_scenario
+
+            _, scenarios = load_catalogue(args.catalogue_file)
+            if args.scenario not in scenarios:
+                raise UsageError(f"unknown scenario {args.scenario!r}; allowed: {', '.join(scenarios)}")
+            s = scenarios[args.scenario]
+            frames = min(s.frames, args.frames) if args.frames else s.frames
+            run = lambda d: evaluate_scenario(s.preset, s.size, frames, s.seed, {"d": d}, m)["d"]  # noqa: E731
+            title = f"detector {name} on scenario {s.name} ({frames} frames)"
+        else:
+            if not (args.degraded and args.clean):
+                raise UsageError("--degraded and --clean go together")
+            pairs = pair_files(Path(args.degraded), Path(args.clean))
+            run = lambda d: evaluate_pairs(pairs, d, m, rise=args.rise, min_area=args.min_area)  # noqa: E731
+            title = f"detector {name} on {len(pairs)} real image pair(s)"
+        scores = run(detector)
+        if args.plot:
+            sweep = sweep_detector(name, params, run)
+    summary = summarise(scores)
+    if args.csv:
+        write_frame_csv(scores, args.csv)
+    if args.plot:
+        plot_evaluation(args.plot, scores, sweep, title=title)
+    if args.json:
+        print(json.dumps({"input": title, "overall": summary, "frames": [s.row() for s in scores]}, indent=2))
+    else:
+        print(format_summary(summary, title=title))
+    return 0
+
+
+def _bench(args: argparse.Namespace) -> int:
+    import json
+
+    from .bench import bench, format_bench, plot_bench
+    from .config import parse_size
+    from .detection import DETECTORS
+
+    if args.frames <= 0:
+        raise UsageError(f"--frames {args.frames}: allowed a positive number")
+    if args.threads < 1:
+        raise UsageError(f"--threads {args.threads}: allowed >= 1")
+    names = [n.strip() for n in args.detectors.split(",")] if args.detectors else list(DETECTORS)
+    for n in names:
+        if n not in DETECTORS:
+            raise UsageError(f"unknown detector {n!r}; allowed: {', '.join(sorted(DETECTORS))}")
+    sizes = []
+    for text in args.sizes.split(","):
+        try:
+            w, h = parse_size(text.strip(), key="--sizes")
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+        sizes.append((w, h, "fullres" if w * h > 800 * 600 else "mixed"))
+    result = bench(detectors=names, frames=args.frames, threads=args.threads, sizes=tuple(sizes))
+    if args.plot:
+        plot_bench(result, args.plot)
+    print(json.dumps(result.as_dict(), indent=2) if args.json else format_bench(result))
+    return 0
 
 
 def _simulate(args: argparse.Namespace) -> int:
@@ -213,6 +403,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 0
         if args.command == "simulate":
             return _simulate(args)
+        if args.command == "evaluate":
+            return _evaluate(args)
+        if args.command == "bench":
+            return _bench(args)
     except UsageError as exc:
         print(f"antiscatter {args.command}: error: {exc}", file=sys.stderr)
         return 2

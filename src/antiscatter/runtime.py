@@ -28,7 +28,7 @@ from .pattern import render_pattern, scale_mapping
 from .sources import FrameSource, open_source, parse_crop
 from .stats import RunningStats
 
-__all__ = ["REPORT_COLUMNS", "metrics_columns", "Pacer", "RunSummary", "run", "set_niceness"]
+__all__ = ["REPORT_COLUMNS", "metrics_columns", "time_stages", "Pacer", "RunSummary", "run", "set_niceness"]
 
 #: The report's metrics CSV columns, in its order (SPEC section 3).
 REPORT_COLUMNS = (
@@ -58,6 +58,23 @@ def metrics_columns(detector: Detector) -> list[str]:
     extra_stages = [f"{s.label} Duration (s)" for s in detector.stages
                     if f"{s.label} Duration (s)" not in REPORT_COLUMNS]
     return [*REPORT_COLUMNS, *EXTRA_COLUMNS, *extra_stages]
+
+
+def time_stages(detector: Detector, image: np.ndarray, *,
+                clock: Callable[[], int] = time.perf_counter_ns) -> tuple[Detections, list[int]]:
+    """Run the detector's stages on one frame, timing each: (detections, nanoseconds per stage).
+
+    The one place stages are timed; ``run`` and ``bench`` both use it.
+    """
+    value = image
+    durations = []
+    t_prev = clock()
+    for stage in detector.stages:
+        value = stage.run(value)
+        t_now = clock()
+        durations.append(t_now - t_prev)
+        t_prev = t_now
+    return value, durations
 
 
 class Pacer:
@@ -218,7 +235,6 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None)
 
         pattern_buffer = np.empty((projector_size[1], projector_size[0]), np.uint8)
         pacer = Pacer(rc.fps)
-        stages = detector.stages
         stop = stack.enter_context(_StopFlag())
         clock = time.perf_counter_ns
         started = clock()
@@ -238,15 +254,8 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None)
             if frame is None:
                 summary.stop_reason = "source ended"
                 break
-            value = frame.image
-            stage_ns = []
-            t_prev = t1
-            for stage in stages:
-                value = stage.run(value)
-                t_now = clock()
-                stage_ns.append(t_now - t_prev)
-                t_prev = t_now
-            detections: Detections = value
+            detections, stage_ns = time_stages(detector, frame.image, clock=clock)
+            t_prev = t1 + sum(stage_ns)
             pattern = render_pattern(detections, size=projector_size, mapping=mapping,
                                      margin=config.pattern.margin, out=pattern_buffer)
             t_pattern = clock()

@@ -52,17 +52,22 @@ class _Entry:
     params: type
     build: Callable[[Any], Detector]
     summary: str
+    sweep: tuple[str, tuple] = ("", ())  # sensitivity parameter and values for PR curves
 
 
 DETECTORS: dict[str, _Entry] = {}
 
 
 def register_detector(name: str, params: type, build: Callable[[Any], Detector],
-                      summary: str) -> None:
-    """Add a detector under ``name``; ``params`` is its frozen config dataclass."""
+                      summary: str, *, sweep: tuple[str, tuple] = ("", ())) -> None:
+    """Add a detector under ``name``; ``params`` is its frozen config dataclass.
+
+    sweep: (parameter name, values from most to least sensitive) used to draw
+    precision-recall curves.
+    """
     if not is_dataclass(params):
         raise TypeError("params must be a dataclass type")
-    DETECTORS[name] = _Entry(params, build, summary)
+    DETECTORS[name] = _Entry(params, build, summary, sweep)
 
 
 def make_detector(name: str, params: Any = None) -> Detector:

@@ -119,4 +119,5 @@ def build_seed(params: SeedParams) -> Detector:
 
 
 register_detector("seed", SeedParams, build_seed,
-                  "the 2024 report's pipeline: blur, threshold 200, Canny, contours, enclosing circles")
+                  "the 2024 report's pipeline: blur, threshold 200, Canny, contours, enclosing circles",
+                  sweep=("threshold", (20, 40, 60, 80, 100, 120, 140, 160, 180, 200, 220, 240)))

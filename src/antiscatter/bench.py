@@ -1,0 +1,191 @@
+"""``antiscatter bench``: per-stage latency of every detector on the same frames.
+
+Frames come from the simulator (``mixed`` at 800x600 and ``fullres`` at
+1456x1088 by default).  Detectors run interleaved -- frame by frame, in a
+rotating order -- so that machine noise and drift hit all of them alike.  The
+time of one plain copy of a frame is measured the same way and reported as the
+memory floor.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+
+from .detection import DETECTORS, make_detector
+from .runtime import time_stages
+from .simulate import make_scene
+
+__all__ = ["BenchResult", "bench", "format_bench", "machine_description"]
+
+DEFAULT_SIZES = ((800, 600, "mixed"), (1456, 1088, "fullres"))
+
+
+def machine_description() -> str:
+    """CPU model, core count, Python and OpenCV versions."""
+    model = platform.processor() or platform.machine()
+    info: dict[str, str] = {}
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                key, sep, value = line.partition(":")
+                if sep:
+                    info.setdefault(key.strip().lower(), value.strip())
+    except OSError:
+        pass
+    for key in ("model name", "model", "hardware"):  # x86 / Raspberry Pi / other ARM
+        if info.get(key) and not info[key].isdigit():
+            model = info[key]
+            break
+    return (f"{model}, {os.cpu_count()} cores, {platform.system()} {platform.machine()}, "
+            f"Python {platform.python_version()}, OpenCV {cv2.__version__}")
+
+
+def _stats(ns: list[int]) -> dict[str, float]:
+    us = np.asarray(ns, dtype=np.float64) / 1e3
+    return {"mean_us": float(us.mean()), "sd_us": float(us.std(ddof=1)) if len(us) > 1 else 0.0,
+            "median_us": float(np.median(us)), "p99_us": float(np.percentile(us, 99)),
+            "max_us": float(us.max())}
+
+
+@dataclass
+class BenchResult:
+    """Everything ``bench`` measured, ready for JSON."""
+
+    machine: str
+    threads: int
+    frames: int
+    sizes: list[dict[str, Any]]
+
+    def as_dict(self) -> dict[str, Any]:
+        sizes = [{k: v for k, v in entry.items() if not k.startswith("_")} for entry in self.sizes]
+        return {"machine": self.machine, "opencv_threads": self.threads, "frames": self.frames,
+                "sizes": sizes}
+
+
+def bench(*, detectors: list[str] | None = None, frames: int = 200, threads: int = 1,
+          sizes: tuple[tuple[int, int, str], ...] = DEFAULT_SIZES, distinct: int = 20,
+          seed: int = 0) -> BenchResult:
+    """Time every detector's stages on ``frames`` frames per size (``distinct`` different ones, cycled)."""
+    names = detectors or list(DETECTORS)
+    built = {name: make_detector(name) for name in names}
+    previous = cv2.getNumThreads()
+    cv2.setNumThreads(threads)
+    try:
+        results = []
+        for width, height, preset in sizes:
+            scene = make_scene(preset, rng=np.random.default_rng(seed), size=(width, height))
+            pool = []
+            for i in range(distinct):
+                if i:
+                    for _ in range(3):
+                        scene.step()
+                pool.append(scene.render())
+            copy_target = np.empty_like(pool[0])
+            per_stage: dict[str, dict[str, list[int]]] = {
+                n: {s.name: [] for s in d.stages} for n, d in built.items()}
+            totals: dict[str, list[int]] = {n: [] for n in built}
+            counts: dict[str, list[int]] = {n: [] for n in built}
+            copies: list[int] = []
+            order = list(built)
+            for name in order:  # warm-up: first calls allocate
+                built[name].detect(pool[0])
+            for k in range(frames):
+                image = pool[k % distinct]
+                t0 = time.perf_counter_ns()
+                np.copyto(copy_target, image)
+                copies.append(time.perf_counter_ns() - t0)
+                rotated = order[k % len(order):] + order[:k % len(order)]
+                for name in rotated:
+                    detections, durations = time_stages(built[name], image)
+                    for stage, ns in zip(built[name].stages, durations):
+                        per_stage[name][stage.name].append(ns)
+                    totals[name].append(sum(durations))
+                    counts[name].append(len(detections))
+            floor = float(np.median(copies)) / 1e3
+            seed_median = float(np.median(totals["seed"])) / 1e3 if "seed" in totals else None
+            entry = {"size": f"{width}x{height}", "preset": preset, "copy_floor_us": _stats(copies),
+                     "detectors": {}, "_samples": {}}
+            for name, d in built.items():
+                total = _stats(totals[name])
+                entry["detectors"][name] = {
+                    "stages": {s.name: {"label": s.label, **_stats(per_stage[name][s.name])} for s in d.stages},
+                    "total": total,
+                    "particles_per_frame": float(np.mean(counts[name])),
+                    "fps": 1e6 / total["median_us"] if total["median_us"] else float("inf"),
+                    "speedup_vs_seed": (seed_median / total["median_us"]) if seed_median else None,
+                    "x_floor": total["median_us"] / floor if floor else None,
+                }
+                for stage in d.stages:
+                    entry["_samples"][f"{name}: {stage.label}"] = np.asarray(per_stage[name][stage.name]) / 1e3
+                entry["_samples"][f"{name}: total"] = np.asarray(totals[name]) / 1e3
+            results.append(entry)
+    finally:
+        cv2.setNumThreads(previous)
+    return BenchResult(machine_description(), threads, frames, results)
+
+
+def format_bench(result: BenchResult) -> str:
+    """The report's table 1 layout per size: stage mean and sd, plus median, p99 and max (us)."""
+    lines = [f"machine: {result.machine}", f"OpenCV threads: {result.threads}; {result.frames} frames per size, "
+             "detectors interleaved"]
+    for entry in result.sizes:
+        floor = entry["copy_floor_us"]["median_us"]
+        lines.append("")
+        lines.append(f"{entry['size']} ({entry['preset']} scene); memory floor (one frame copy): "
+                     f"median {floor:.1f} us")
+        for name, d in entry["detectors"].items():
+            lines.append(f"  detector {name}: {d['particles_per_frame']:.1f} particles/frame")
+            lines.append(f"    {'stage':<28}{'mean':>9}{'sd':>9}{'median':>9}{'p99':>9}{'max':>9}  (us)")
+            for stage in d["stages"].values():
+                lines.append(f"    {stage['label']:<28}{stage['mean_us']:>9.1f}{stage['sd_us']:>9.1f}"
+                             f"{stage['median_us']:>9.1f}{stage['p99_us']:>9.1f}{stage['max_us']:>9.1f}")
+            t = d["total"]
+            lines.append(f"    {'total':<28}{t['mean_us']:>9.1f}{t['sd_us']:>9.1f}{t['median_us']:>9.1f}"
+                         f"{t['p99_us']:>9.1f}{t['max_us']:>9.1f}")
+            ratio = f", {d['speedup_vs_seed']:.2f}x seed's throughput" if d["speedup_vs_seed"] else ""
+            lines.append(f"    {d['fps']:.0f} frames/s{ratio}, {d['x_floor']:.1f}x the memory floor")
+    return "\n".join(lines)
+
+
+def plot_bench(result: BenchResult, path: str) -> None:
+    """Per-stage box plots (whiskers at p1 and p99), one panel per frame size (needs matplotlib)."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, len(result.sizes), figsize=(7 * len(result.sizes), 6), squeeze=False)
+    for ax, entry in zip(axes[0], result.sizes):
+        labels = list(entry["_samples"])
+        data = [entry["_samples"][k] for k in labels]
+        try:  # matplotlib >= 3.10
+            ax.boxplot(data, orientation="horizontal", whis=(1, 99), showfliers=False)
+        except TypeError:
+            ax.boxplot(data, vert=False, whis=(1, 99), showfliers=False)
+        ax.set_yticks(range(1, len(labels) + 1), labels, fontsize=8)
+        ax.invert_yaxis()
+        ax.set_xscale("log")
+        ax.axvline(entry["copy_floor_us"]["median_us"], color="tab:red", linestyle="--",
+                   label="memory floor (one frame copy)")
+        ax.set_xlabel("microseconds per frame (log)")
+        ax.set_title(f"{entry['size']} ({entry['preset']} scene)")
+        ax.legend(fontsize=8)
+    fig.suptitle(f"antiscatter bench: {result.threads} OpenCV thread(s), {result.frames} frames")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def _pyplot():
+    from .errors import UsageError
+
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise UsageError("--plot needs matplotlib: pip install 'antiscatter[plot]'") from None
+    return plt

@@ -1,0 +1,145 @@
+"""Evaluation drivers: CSV pairs, simulator folders, in-memory scenarios, real image pairs."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterator
+
+import cv2
+import numpy as np
+
+from ..detection import Detector
+from ..errors import UsageError
+from ..simulate import make_scene
+from ..sources.folder import list_frames
+from .metrics import FrameScore, score_frame
+from .reference import read_image, reference_truth
+from .tables import FrameTruth, read_detections, read_truth
+
+__all__ = ["Matching", "evaluate_csv", "evaluate_folder", "evaluate_scenario", "evaluate_pairs",
+           "scenario_frames"]
+
+
+@dataclass(frozen=True)
+class Matching:
+    """How truth is counted and matched.
+
+    min_gate, gate_scale: a detection matches when its centre is within
+        max(gate_scale * truth radius, min_gate) pixels.
+    min_visibility, min_snr: truth below these is neither to be found nor a false alarm.
+    margin: pixels added to each hole's radius for the pixel metrics.
+    """
+
+    min_gate: float = 2.0
+    gate_scale: float = 1.0
+    min_visibility: float = 0.5
+    min_snr: float = 5.0
+    margin: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("min_gate", "gate_scale", "min_visibility", "margin", "min_snr"):
+            if getattr(self, name) < 0:
+                raise UsageError(f"--{name.replace('_', '-')}: got {getattr(self, name)}, allowed >= 0")
+
+
+def _score(frame: int, truth: FrameTruth | None, centres: np.ndarray, radii: np.ndarray, m: Matching,
+           masks: tuple[np.ndarray, np.ndarray] | None = None) -> FrameScore:
+    if truth is None:
+        truth = FrameTruth(np.empty((0, 2)), np.empty(0), np.empty(0, bool), np.empty(0, np.int64))
+    particle, ignore = masks if masks is not None else (None, None)
+    return score_frame(frame, truth.centres, truth.radii, truth.counted, centres, radii,
+                       min_gate=m.min_gate, gate_scale=m.gate_scale, particle_mask=particle,
+                       ignore_mask=ignore, margin=m.margin)
+
+
+def _label_masks(labels: np.ndarray, truth: FrameTruth | None, path: Any = "") -> tuple[np.ndarray, np.ndarray]:
+    counted_labels = truth.labels[truth.counted & (truth.labels > 0)] if truth is not None else np.empty(0)
+    lut = np.zeros(int(labels.max()) + 1 if labels.size else 1, bool)
+    lut[counted_labels[counted_labels < len(lut)]] = True
+    particle = lut[labels]
+    return particle, (labels > 0) & ~particle
+
+
+def evaluate_csv(truth_path: Path, detections_path: Path, m: Matching) -> list[FrameScore]:
+    """Score a detections CSV against a truth CSV, frame by frame (0 .. last truth frame)."""
+    truth = read_truth(truth_path, min_visibility=m.min_visibility, min_snr=m.min_snr)
+    frames = range(0, max(truth) + 1) if truth else range(0)
+    found = read_detections(detections_path, frames=frames, frames_source=str(truth_path))
+    empty = (np.empty((0, 2)), np.empty(0))
+    return [_score(f, truth.get(f), *found.get(f, empty), m) for f in frames]
+
+
+def evaluate_folder(folder: Path, detector: Detector, m: Matching) -> list[FrameScore]:
+    """Run ``detector`` on a simulator output folder; pixel metrics where masks/ exist."""
+    truth_path = folder / "truth.csv"
+    if not truth_path.is_file():
+        raise UsageError(f"{folder}: no truth.csv (expected an 'antiscatter simulate' output folder)")
+    truth = read_truth(truth_path, min_visibility=m.min_visibility, min_snr=m.min_snr)
+    paths = list_frames(folder)
+    if not paths:
+        raise UsageError(f"{folder}: no frames named <int>.png in this folder")
+    scores = []
+    for path in paths:
+        frame = int(path.stem)
+        image = read_image(path)
+        masks = None
+        mask_path = folder / "masks" / path.name
+        if mask_path.is_file():
+            labels = cv2.imread(str(mask_path), cv2.IMREAD_UNCHANGED)
+            if labels is None:
+                raise UsageError(f"{mask_path}: not a readable mask image")
+            if labels.shape[:2] != image.shape[:2]:
+                raise UsageError(f"{mask_path}: mask is {labels.shape[1]}x{labels.shape[0]}, "
+                                 f"frame is {image.shape[1]}x{image.shape[0]}")
+            masks = _label_masks(labels, truth.get(frame))
+        found = detector.detect(image)
+        scores.append(_score(frame, truth.get(frame), found.centres, found.radii, m, masks))
+    return scores
+
+
+def scenario_frames(preset: str, size: tuple[int, int], frames: int,
+                    seed: int) -> Iterator[tuple[int, np.ndarray, np.ndarray, Any]]:
+    """(frame, image, labels, truth) of a scenario, generated in memory."""
+    scene = make_scene(preset, rng=np.random.default_rng(seed), size=size)
+    labels = np.zeros((scene.size[1], scene.size[0]), np.uint16)
+    for index in range(frames):
+        if index:
+            scene.step()
+        image = scene.render(labels=labels)
+        yield index, image, labels, scene.truth()
+
+
+def truth_of(scene_truth: Any, m: Matching) -> FrameTruth:
+    """A simulator Truth as FrameTruth with the counting rule applied."""
+    counted = (scene_truth.visibility >= m.min_visibility) & (scene_truth.labels > 0) & (scene_truth.snr >= m.min_snr)
+    return FrameTruth(scene_truth.centres, scene_truth.radii, counted, scene_truth.labels.astype(np.int64))
+
+
+def evaluate_scenario(preset: str, size: tuple[int, int], frames: int, seed: int,
+                      detectors: dict[str, Detector], m: Matching) -> dict[str, list[FrameScore]]:
+    """Every detector on the same in-memory scenario frames."""
+    scores: dict[str, list[FrameScore]] = {name: [] for name in detectors}
+    for index, image, labels, scene_truth in scenario_frames(preset, size, frames, seed):
+        truth = truth_of(scene_truth, m)
+        masks = _label_masks(labels, truth)
+        for name, detector in detectors.items():
+            found = detector.detect(image)
+            scores[name].append(_score(index, truth, found.centres, found.radii, m, masks))
+    return scores
+
+
+def evaluate_pairs(pairs: list[tuple[Path, Path]], detector: Detector, m: Matching, *,
+                   rise: float = 20.0, min_area: int = 3) -> list[FrameScore]:
+    """Score ``detector`` on real degraded images against truth from their clean references."""
+    scores = []
+    for index, (degraded_path, clean_path) in enumerate(pairs):
+        degraded, clean = read_image(degraded_path), read_image(clean_path)
+        try:
+            centres, radii, particle, small = reference_truth(degraded, clean, rise=rise, min_area=min_area)
+        except ValueError as exc:
+            raise UsageError(f"{degraded_path}: {exc} ({clean_path})") from None
+        truth = FrameTruth(centres, radii, np.ones(len(radii), bool), np.arange(1, len(radii) + 1))
+        found = detector.detect(degraded)
+        scores.append(_score(index, truth, found.centres, found.radii, m, (particle, small)))
+    return scores

@@ -1,0 +1,127 @@
+"""Reading truth and detection CSVs, with one-line errors naming the file and row."""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import UsageError
+
+__all__ = ["FrameTruth", "read_truth", "read_detections"]
+
+
+@dataclass(frozen=True)
+class FrameTruth:
+    """Truth of one frame: centres (N, 2), radii (N,), counted (N,) bool, labels (N,) int."""
+
+    centres: np.ndarray
+    radii: np.ndarray
+    counted: np.ndarray
+    labels: np.ndarray
+
+
+def _rows(path: Path, required: tuple[str, ...]):
+    try:
+        handle = path.open(newline="")
+    except FileNotFoundError:
+        raise UsageError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise UsageError(f"{path}: is a folder, expected a CSV file") from None
+    with handle:
+        reader = csv.reader(handle)
+        header = next(reader, None)
+        if header is None:
+            return None, iter(())
+        header = [h.strip() for h in header]
+        missing = [c for c in required if c not in header]
+        if missing:
+            raise UsageError(f"{path}: missing column {missing[0]!r} (header has: {', '.join(header)})")
+        index = {name: header.index(name) for name in header}
+        rows = list(enumerate(reader, start=2))
+    return index, iter(rows)
+
+
+def _number(path: Path, line: int, name: str, text: str, *, integer: bool = False,
+            non_negative: bool = False) -> float:
+    try:
+        value = int(text) if integer else float(text)
+    except ValueError:
+        kind = "an integer" if integer else "a number"
+        raise UsageError(f"{path} row {line}: {name} {text!r} is not {kind}") from None
+    if not integer and not math.isfinite(value):
+        raise UsageError(f"{path} row {line}: {name} {text!r} is not a finite number")
+    if non_negative and value < 0:
+        raise UsageError(f"{path} row {line}: {name} {text!r} is negative; allowed >= 0")
+    return value
+
+
+def read_truth(path: str | Path, *, min_visibility: float = 0.5, min_snr: float = 5.0) -> dict[int, FrameTruth]:
+    """truth.csv (the simulator's) -> {frame: FrameTruth}.
+
+    A particle is counted when its Visibility >= ``min_visibility``, its Label > 0
+    and its SNR >= ``min_snr`` (columns that are absent count as satisfied).
+    """
+    path = Path(path)
+    index, rows = _rows(path, ("Frame #", "X Position", "Y Position", "Radius"))
+    if index is None:
+        raise UsageError(f"{path}: empty; expected the header Bubble ID,Frame #,X Position,Y Position,Radius")
+    frames: dict[int, list] = {}
+    for line, row in rows:
+        if not row:
+            continue
+        try:
+            frame = int(_number(path, line, "Frame #", row[index["Frame #"]], integer=True))
+            x = _number(path, line, "X Position", row[index["X Position"]])
+            y = _number(path, line, "Y Position", row[index["Y Position"]])
+            r = _number(path, line, "Radius", row[index["Radius"]], non_negative=True)
+            vis = float(row[index["Visibility"]]) if "Visibility" in index else 1.0
+            label = int(row[index["Label"]]) if "Label" in index else 1
+            snr = float(row[index["SNR"]]) if "SNR" in index else math.inf
+        except IndexError:
+            raise UsageError(f"{path} row {line}: has {len(row)} fields, the header has {len(index)}") from None
+        except ValueError:
+            raise UsageError(f"{path} row {line}: Visibility, Label or SNR is not a number") from None
+        frames.setdefault(frame, []).append((x, y, r, vis >= min_visibility and label > 0 and snr >= min_snr,
+                                             label))
+    out = {}
+    for frame, items in frames.items():
+        arr = np.array([(x, y, r) for x, y, r, _, _ in items], dtype=np.float64).reshape(-1, 3)
+        out[frame] = FrameTruth(arr[:, :2], arr[:, 2], np.array([c for *_, c, _ in items], bool),
+                                np.array([lab for *_, lab in items], np.int64))
+    return out
+
+
+def read_detections(path: str | Path, *, frames: range | None = None,
+                    frames_source: str = "") -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """A detections CSV (``frame,x,y,radius``, more columns allowed) -> {frame: (centres, radii)}.
+
+    An empty file (or a header alone) is valid: no detections.  ``frames`` is the
+    range of frames the truth covers; a detection outside it is an error naming
+    the row (``frames_source`` names the truth in the message).
+    """
+    path = Path(path)
+    if path.exists() and path.is_file() and path.stat().st_size == 0:
+        return {}
+    index, rows = _rows(path, ("frame", "x", "y", "radius"))
+    if index is None:
+        return {}
+    found: dict[int, list] = {}
+    for line, row in rows:
+        if not row:
+            continue
+        try:
+            frame = int(_number(path, line, "frame", row[index["frame"]], integer=True))
+            x = _number(path, line, "x", row[index["x"]])
+            y = _number(path, line, "y", row[index["y"]])
+            r = _number(path, line, "radius", row[index["radius"]], non_negative=True)
+        except IndexError:
+            raise UsageError(f"{path} row {line}: has {len(row)} fields, the header has {len(index)}") from None
+        if frames is not None and frame not in frames:
+            raise UsageError(f"{path} row {line}: frame {frame} is not in {frames_source or 'the truth'} "
+                             f"(frames {frames.start}..{frames.stop - 1})")
+        found.setdefault(frame, []).append((x, y, r))
+    return {f: (np.array(v)[:, :2], np.array(v)[:, 2]) for f, v in found.items()}

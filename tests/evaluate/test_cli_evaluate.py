@@ -1,0 +1,153 @@
+"""``antiscatter evaluate`` and ``bench`` end to end, and their bad input."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from antiscatter.evaluate.reference import reference_truth
+
+
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory):
+    from antiscatter.simulate.export import SimulationRequest, simulate
+    out = tmp_path_factory.mktemp("sim")
+    simulate(SimulationRequest(out=out, preset="seed", frames=6, seed=1, masks=True))
+    return out
+
+
+def _truth_rows(sim):
+    return (sim / "truth.csv").read_text().splitlines()
+
+
+def test_perfect_detections_score_one(sim, tmp_path, cli):
+    rows = [r.split(",") for r in _truth_rows(sim)[1:]]
+    lines = ["frame,x,y,radius"] + [f"{r[1]},{r[2]},{r[3]},{r[4]}" for r in rows if float(r[8]) >= 0.5]
+    (tmp_path / "d.csv").write_text("\n".join(lines) + "\n")
+    result = cli("evaluate", "--truth", str(sim / "truth.csv"), "--detections", str(tmp_path / "d.csv"), "--json")
+    assert result.code == 0, result.err
+    overall = json.loads(result.out)["overall"]
+    assert overall["precision"] == 1.0 and overall["recall"] == 1.0 and overall["f1"] == 1.0
+    assert overall["centre_error_mean"] < 1e-3
+
+
+def test_run_detections_evaluate_against_truth_and_folder_mode_agrees(sim, tmp_path, cli):
+    assert cli("run", str(sim), "--output", "none", "--detections", str(tmp_path / "d.csv")).code == 0
+    a = cli("evaluate", "--truth", str(sim / "truth.csv"), "--detections", str(tmp_path / "d.csv"), "--json")
+    b = cli("evaluate", str(sim), "--detector", "seed", "--json", "--csv", str(tmp_path / "f.csv"))
+    oa, ob = json.loads(a.out)["overall"], json.loads(b.out)["overall"]
+    for key in ("tp", "fp", "fn"):
+        assert oa[key] == ob[key]
+    assert 0 <= ob["cancellation"] <= 1 and 0 <= ob["light_kept"] <= 1
+    assert len((tmp_path / "f.csv").read_text().splitlines()) == 7
+
+
+def test_empty_detections_file_is_valid_recall_zero(sim, tmp_path, cli):
+    (tmp_path / "empty.csv").write_text("")
+    result = cli("evaluate", "--truth", str(sim / "truth.csv"), "--detections", str(tmp_path / "empty.csv"), "--json")
+    assert result.code == 0
+    assert json.loads(result.out)["overall"]["recall"] == 0.0
+
+
+@pytest.mark.parametrize("content, message", [
+    ("frame,x,y\n0,1,2\n", "missing column 'radius'"),
+    ("frame,x,y,radius\n0,1,2,nan\n", "row 2: radius 'nan' is not a finite number"),
+    ("frame,x,y,radius\n0,1,2,3\n0,1,2,-1\n", "row 3: radius '-1' is negative"),
+    ("frame,x,y,radius\n999,1,2,3\n", "row 2: frame 999 is not in"),
+    ("frame,x,y,radius\nzero,1,2,3\n", "row 2: frame 'zero' is not an integer"),
+])
+def test_bad_detection_files(sim, tmp_path, cli, content, message):
+    (tmp_path / "d.csv").write_text(content)
+    result = cli("evaluate", "--truth", str(sim / "truth.csv"), "--detections", str(tmp_path / "d.csv"))
+    assert result.code == 2
+    assert len(result.err.strip().splitlines()) == 1
+    assert message in result.err and "d.csv" in result.err
+
+
+def test_masks_of_the_wrong_size(sim, tmp_path, cli):
+    import shutil
+    copy = tmp_path / "copy"
+    shutil.copytree(sim, copy)
+    cv2.imwrite(str(copy / "masks" / "0.png"), np.zeros((10, 10), np.uint16))
+    result = cli("evaluate", str(copy), "--detector", "seed")
+    assert result.code == 2 and "mask is 10x10, frame is 800x600" in result.err
+
+
+def test_inputs_must_be_one(cli, sim):
+    result = cli("evaluate")
+    assert result.code == 2 and "give exactly one input" in result.err
+    result = cli("evaluate", str(sim), "--scenario", "seed")
+    assert result.code == 2
+
+
+def test_reference_truth_from_a_clean_pair():
+    clean = np.full((60, 80, 3), 90, np.uint8)
+    degraded = clean.copy()
+    cv2.circle(degraded, (20, 30), 4, (200, 200, 200), -1)
+    cv2.circle(degraded, (60, 15), 2, (180, 180, 180), -1)
+    degraded[50, 70] = 255  # a 1-pixel speck: below min_area, ignored
+    centres, radii, particle, small = reference_truth(degraded, clean, rise=20, min_area=3)
+    order = np.argsort(centres[:, 0])
+    np.testing.assert_allclose(centres[order], [[20, 30], [60, 15]], atol=0.01)
+    assert radii[order][0] == pytest.approx(np.sqrt((degraded[..., 0] > 150)[:, :40].sum() / np.pi))
+    assert small[50, 70] and not particle[50, 70]
+
+
+def test_real_pair_cli(tmp_path, cli):
+    clean = np.full((60, 80, 3), 40, np.uint8)
+    degraded = clean.copy()
+    cv2.circle(degraded, (20, 30), 5, (255, 255, 255), -1)
+    cv2.imwrite(str(tmp_path / "c.png"), clean)
+    cv2.imwrite(str(tmp_path / "d.png"), degraded)
+    result = cli("evaluate", "--degraded", str(tmp_path / "d.png"), "--clean", str(tmp_path / "c.png"),
+                 "--detector", "seed", "--json")
+    assert result.code == 0, result.err
+    overall = json.loads(result.out)["overall"]
+    assert overall["tp"] == 1 and overall["fp"] == 0 and overall["cancellation"] > 0.9
+
+
+def test_plot_written(sim, tmp_path, cli):
+    result = cli("evaluate", str(sim), "--detector", "seed", "--plot", str(tmp_path / "p.png"))
+    assert result.code == 0, result.err
+    image = cv2.imread(str(tmp_path / "p.png"))
+    assert image is not None and image.shape[1] > 800
+
+
+def test_bench_json_has_every_stage_for_every_detector(cli, tmp_path):
+    from antiscatter.detection import DETECTORS, make_detector
+    result = cli("bench", "--frames", "5", "--sizes", "320x240,640x480", "--json", "--plot", str(tmp_path / "b.png"))
+    assert result.code == 0, result.err
+    data = json.loads(result.out)
+    assert data["opencv_threads"] == 1 and len(data["sizes"]) == 2
+    for entry in data["sizes"]:
+        assert entry["copy_floor_us"]["median_us"] > 0
+        for name in DETECTORS:
+            d = entry["detectors"][name]
+            assert set(d["stages"]) == {s.name for s in make_detector(name).stages}
+            for stage in d["stages"].values():
+                assert {"mean_us", "sd_us", "median_us", "p99_us", "max_us"} <= set(stage)
+            assert d["total"]["median_us"] > 0
+        assert entry["detectors"]["seed"]["speedup_vs_seed"] == pytest.approx(1.0)
+    assert cv2.imread(str(tmp_path / "b.png")) is not None
+
+
+def test_scoreboard_end_to_end_on_a_tiny_catalogue(tmp_path, cli):
+    catalogue = tmp_path / "c.toml"
+    catalogue.write_text('version = 3\n[scenario.tiny]\npreset = "seed"\nsize = "200x150"\nframes = 3\nseed = 2\n'
+                         '[scenario.tinybubbles]\npreset = "bubbles"\nsize = "200x150"\nframes = 2\nseed = 2\n')
+    data = tmp_path / "data" / "msrb"
+    data.mkdir(parents=True)
+    clean = np.full((40, 40, 3), 50, np.uint8)
+    degraded = clean.copy()
+    cv2.circle(degraded, (20, 20), 4, (255, 255, 255), -1)
+    cv2.imwrite(str(data / "x_orig.png"), clean)
+    cv2.imwrite(str(data / "x_task1.png"), degraded)
+    report = tmp_path / "score.md"
+    result = cli("evaluate", "--catalogue", "--catalogue-file", str(catalogue), "--data", str(tmp_path / "data"),
+                 "--report", str(report), "--bench-frames", "3")
+    assert result.code == 0, result.err
+    text = report.read_text()
+    assert "catalogue version 3" in text
+    assert "| tiny | seed |" in text and "| tinybubbles | seed |" in text and "| real: x_task1 | seed |" in text
+    assert "## Latency" in text
