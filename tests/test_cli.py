@@ -39,7 +39,7 @@ def test_run_on_the_builtin_simulator(tmp_path):
     det = list(csv.DictReader((tmp_path / "d.csv").open()))
     assert len(det) > 1000
     assert "frames: 300 (frame limit 300)" in result.stdout
-    assert "Canny Algorithm" in result.stdout
+    assert "Connected Components" in result.stdout and "mean (us)" in result.stdout
 
 
 def test_run_on_a_frame_folder_finds_the_drawn_particles(tmp_path, cli):
@@ -78,7 +78,8 @@ def test_run_on_a_video_with_crop_and_loop(tmp_path, cli):
 
 def test_config_file_and_param(tmp_path, cli):
     config = tmp_path / "run.toml"
-    config.write_text('[run]\nframes = 5\n[output]\noutputs = ["none"]\n[detector.seed]\nthreshold = 100\n')
+    config.write_text('[run]\nframes = 5\n[output]\noutputs = ["none"]\n[detector]\nname = "seed"\n'
+                      '[detector.seed]\nthreshold = 100\n')
     result = cli("run", "--config", str(config), "-p", "equalise=true",
                  "--metrics", str(tmp_path / "m.csv"))
     assert result.code == 0, result.err
@@ -108,14 +109,15 @@ def _bad_inputs(tmp_path):
         (["run", str(notimg)], "0.png: not a readable PNG image"),
         (["run", str(junk)], "junk.mp4: cannot be"),
         (["run", str(video), "--crop", "0:100,0:10"], "outside the 64x48 frame"),
-        (["run", "--detector", "magic"], "unknown detector 'magic'; allowed: seed"),
+        (["run", "--detector", "magic"], "unknown detector 'magic'; allowed: contrast, seed"),
         (["run", "webcam:x"], "expected webcam:N"),
         (["run", "--output", "laser"], "unknown output 'laser'"),
         (["run", "--config", str(badkey)], "unknown key run.speed; allowed: frames"),
         (["run", "--config", str(badtype)], "pattern.width: got 'wide', allowed an integer"),
         (["run", "--frames", "-3"], "run.frames: got -3, allowed >= 0"),
         (["run", "--frames", "many"], "argument --frames: invalid int value: 'many'"),
-        (["run", "-p", "threshold=999"], "detector.seed.threshold: got 999, allowed 0..255"),
+        (["run", "--detector", "seed", "-p", "threshold=999"], "detector.seed.threshold: got 999, allowed 0..255"),
+        (["run", "-p", "threshold=999"], "unknown key detector.contrast.threshold"),
         (["run", "--size", "0x10"], "source.size: got '0x10', allowed positive WIDTHxHEIGHT"),
         (["run", "--metrics", str(tmp_path / "no" / "m.csv"), "--output", "none"], "does not exist"),
         (["run", "--mapping", str(badkey)], "--mapping"),

@@ -16,8 +16,9 @@ def test_defaults():
     config = load_config()
     assert isinstance(config, Config)
     assert config.source.spec == "sim"
-    assert config.detector.name == "seed"
-    assert config.detector_params == SeedParams()
+    assert config.detector.name == "contrast"
+    from antiscatter.detection.contrast import ContrastParams
+    assert config.detector_params == ContrastParams()
     assert (config.pattern.width, config.pattern.height) == (1280, 800)
     assert config.output.outputs == ("auto",)
 
@@ -61,10 +62,11 @@ fps = 30
     ("[source]\nsize = '800by600'\n", "run.toml: source.size: got '800by600', allowed WIDTHxHEIGHT, e.g. 800x600"),
     ("[pattern]\nmapping = [[1, 0], [0, 1]]\n", "run.toml: pattern.mapping: got [[1, 0], [0, 1]], allowed a 3x3 matrix of finite numbers"),
     ("[pattern]\nmargin = -1\n", "run.toml: pattern.margin: got -1.0, allowed a number >= 0"),
-    ("[detector.seed]\nthreshold = 300\n", "run.toml: detector.seed.threshold: got 300, allowed 0..255"),
-    ("[detector.seed]\ncolour = 1\n", "run.toml: unknown key detector.seed.colour; allowed: threshold, blur_kernel, canny_sigma, equalise"),
-    ("[detector.fancy]\nx = 1\n", "run.toml: unknown section [detector.fancy]; allowed: detector.seed"),
-    ("[detector]\nname = 'fancy'\n", "unknown detector 'fancy'; allowed: seed"),
+    ("[detector]\nname = 'seed'\n[detector.seed]\nthreshold = 300\n", "run.toml: detector.seed.threshold: got 300, allowed 0..255"),
+    ("[detector]\nname = 'seed'\n[detector.seed]\ncolour = 1\n", "run.toml: unknown key detector.seed.colour; allowed: threshold, blur_kernel, canny_sigma, equalise"),
+    ("[detector.contrast]\nk = -1\n", "run.toml: detector.contrast.k: got -1.0, allowed > 0"),
+    ("[detector.fancy]\nx = 1\n", "run.toml: unknown section [detector.fancy]; allowed: detector.contrast, detector.seed"),
+    ("[detector]\nname = 'fancy'\n", "unknown detector 'fancy'; allowed: contrast, seed"),
     ("[lamp]\nx = 1\n", "run.toml: unknown section [lamp]; allowed: source, detector, pattern, output, run"),
     ("[run\n", "run.toml: not valid TOML"),
 ])

@@ -74,4 +74,4 @@ def test_run_on_the_simulator_writes_metrics_and_detections(tmp_path):
     per_frame = np.bincount([int(r["frame"]) for r in det], minlength=40)
     assert per_frame.tolist() == [int(r["Number of MECs on screen"]) for r in rows]
     text = out.getvalue()
-    assert "Canny Algorithm" in text and "frames per second" in text
+    assert "Connected Components" in text and "frames per second" in text

@@ -12,7 +12,7 @@ from .errors import UsageError
 __all__ = ["main", "build_parser"]
 
 #: The detector ``evaluate`` runs when none is named.
-DEFAULT_DETECTOR = "seed"
+DEFAULT_DETECTOR = "contrast"
 
 
 class _Parser(argparse.ArgumentParser):

@@ -68,9 +68,9 @@ class SourceConfig:
 
 @dataclass(frozen=True)
 class DetectorConfig:
-    """name: registered detector (``antiscatter run --help`` lists them)."""
+    """name: registered detector (``antiscatter run --help`` lists them); default ``contrast``."""
 
-    name: str = "seed"
+    name: str = "contrast"
 
 
 @dataclass(frozen=True)

@@ -80,6 +80,6 @@ def test_bad_params_rejected(kwargs, message):
 
 
 def test_unknown_detector():
-    with pytest.raises(UsageError, match="unknown detector 'nope'; allowed: seed"):
+    with pytest.raises(UsageError, match="unknown detector 'nope'; allowed: contrast, seed"):
         make_detector("nope")
     assert "seed" in DETECTORS

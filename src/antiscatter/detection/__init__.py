@@ -31,13 +31,21 @@ class Stage:
     run: Callable[[Any], Any]
 
 
+def _no_state() -> None:
+    return None
+
+
 @dataclass(frozen=True)
 class Detector:
-    """A named chain of stages; ``detect(frame)`` runs them untimed."""
+    """A named chain of stages; ``detect(frame)`` runs them untimed.
+
+    reset: forget what was learnt from earlier frames (call between unrelated images).
+    """
 
     name: str
     stages: tuple[Stage, ...]
     params: Any = None
+    reset: Callable[[], None] = _no_state
 
     def detect(self, image: np.ndarray) -> Detections:
         """Run every stage on one frame, (H, W, 3) BGR or (H, W) grey uint8."""
@@ -101,3 +109,4 @@ def detect(image: np.ndarray, detector: str = "seed", **params: Any) -> Detectio
 
 
 from . import seed as _seed  # noqa: E402,F401  (registers "seed")
+from . import contrast as _contrast  # noqa: E402,F401  (registers "contrast")

@@ -80,6 +80,7 @@ def evaluate_folder(folder: Path, detector: Detector, m: Matching) -> list[Frame
     if not paths:
         raise UsageError(f"{folder}: no frames named <int>.png in this folder")
     scores = []
+    detector.reset()
     for path in paths:
         frame = int(path.stem)
         image = read_image(path)
@@ -120,6 +121,8 @@ def evaluate_scenario(preset: str, size: tuple[int, int], frames: int, seed: int
                       detectors: dict[str, Detector], m: Matching) -> dict[str, list[FrameScore]]:
     """Every detector on the same in-memory scenario frames."""
     scores: dict[str, list[FrameScore]] = {name: [] for name in detectors}
+    for detector in detectors.values():
+        detector.reset()  # a new scene: nothing learnt carries over
     for index, image, labels, scene_truth in scenario_frames(preset, size, frames, seed):
         truth = truth_of(scene_truth, m)
         masks = _label_masks(labels, truth)
@@ -140,6 +143,7 @@ def evaluate_pairs(pairs: list[tuple[Path, Path]], detector: Detector, m: Matchi
         except ValueError as exc:
             raise UsageError(f"{degraded_path}: {exc} ({clean_path})") from None
         truth = FrameTruth(centres, radii, np.ones(len(radii), bool), np.arange(1, len(radii) + 1))
+        detector.reset()  # unrelated images: nothing learnt carries over
         found = detector.detect(degraded)
         scores.append(_score(index, truth, found.centres, found.radii, m, (particle, small)))
     return scores
