@@ -99,12 +99,15 @@ def working_factor(width: int, factor: int = 0) -> int:
 
 
 def downsample(image: np.ndarray, *, factor: int = 2) -> np.ndarray:
-    """(H, W, 3) BGR or (H, W) grey -> (H/f, W/f) uint8: f x f area mean of one channel (green for BGR)."""
+    """(H, W, 3) BGR or (H, W) grey -> (H/f, W/f) uint8: f x f area mean of one channel (green for BGR);
+    at f = 1 a 3x3 Gaussian instead, the same noise suppression without decimation."""
     height, width = image.shape[:2]
     if factor > 1:
         image = cv2.resize(image, (width // factor, height // factor), interpolation=cv2.INTER_AREA)
     if image.ndim == 3:
         image = cv2.extractChannel(image, 1 if image.shape[2] >= 3 else 0)
+    if factor == 1:  # the same matched filter as the 2x2 mean, without decimation
+        image = cv2.GaussianBlur(image, (3, 3), 0)
     return image
 
 
@@ -256,13 +259,16 @@ def measure(components: dict[str, np.ndarray], excess: np.ndarray, limit: np.nda
 
 def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, excess: np.ndarray,
                  limit: np.ndarray, k: float, n: int) -> tuple[np.ndarray, int]:
-    """Split components that hold two or more separate intensity peaks (touching particles).
+    """Split components that hold two or more particles (touching or overlapping).
 
     Within a component (of 8 pixels or more), the excess is smoothed (3x3) and
     its local maxima (5x5) found; a maximum is a separate particle when it is
     at least 3 px from a brighter one and the profile between them dips below
-    it by both a third of its height and 3 noise units.  Pixels go to the
-    nearest kept peak.
+    it by both a quarter of its height and 3 noise units (read on the
+    unsmoothed excess, so a narrow neck counts).  Flat or saturated particles
+    have no intensity dip; for them the same test runs on the distance
+    transform of the component's core (the pixels above half its peak; a neck
+    at least a quarter narrower than the smaller disc).  Pixels go to the nearest kept peak.
     """
     area = np.bincount(lab, minlength=n)
     # candidates, found without Python loops: components holding two or more 5x5 maxima
@@ -285,35 +291,52 @@ def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarr
         patch = np.zeros((py.max() - y0 + 2, px.max() - x0 + 2), np.float32)
         patch[py - y0, px - x0] = pw
         smooth = cv2.blur(patch, (3, 3))
-        inside = patch > 0
-        is_peak = (smooth >= cv2.dilate(smooth, kernel)) & inside
-        pys, pxs = np.nonzero(is_peak)
-        if len(pys) < 2:
-            continue
-        values = smooth[pys, pxs]
+        inside = (patch > 0).astype(np.uint8)
         sigma = float(np.median(noise[idx]))
-        chosen: list[int] = []
-        for i in np.argsort(-values).tolist():
-            if not chosen:
-                chosen.append(i)
-                continue
-            j = min(chosen, key=lambda s_: (pys[i] - pys[s_]) ** 2 + (pxs[i] - pxs[s_]) ** 2)
-            if (pys[i] - pys[j]) ** 2 + (pxs[i] - pxs[j]) ** 2 < 9:
-                continue
-            steps = 2 + int(np.hypot(pys[i] - pys[j], pxs[i] - pxs[j]))
-            ty = np.rint(np.linspace(pys[i], pys[j], steps)).astype(int)
-            tx = np.rint(np.linspace(pxs[i], pxs[j], steps)).astype(int)
-            dip = values[i] - smooth[ty, tx].min()
-            if dip >= values[i] / 3 and dip >= 3 * sigma:
-                chosen.append(i)
-        if len(chosen) < 2:
+        # intensity peaks, read on the unsmoothed profile so narrow necks count
+        chosen_yx = _separate_peaks(smooth, patch, inside, kernel, lambda v: max(v / 4, 3 * sigma))
+        if len(chosen_yx) < 2:
+            # shape: touching flat or saturated discs have one plateau but two
+            # distance-transform peaks with a neck between them
+            core = (patch >= 0.5 * patch.max()).astype(np.uint8)  # the halo would hide the neck
+            distance = cv2.distanceTransform(core, cv2.DIST_L2, 3)
+            chosen_yx = _separate_peaks(distance, distance, core, kernel, lambda v: max(v / 4, 1.0))
+        if len(chosen_yx) < 2:
             continue
-        sy, sx = pys[chosen] + y0, pxs[chosen] + x0
+        chosen = chosen_yx
+        sy = np.array([p[0] for p in chosen]) + y0
+        sx = np.array([p[1] for p in chosen]) + x0
         d = (px[:, None] - sx[None, :]) ** 2 + (py[:, None] - sy[None, :]) ** 2
         nearest = np.argmin(d, axis=1)
         lab[idx] = np.where(nearest == 0, c, next_label + nearest - 1)
         next_label += len(chosen) - 1
     return lab, next_label
+
+
+def _separate_peaks(surface: np.ndarray, profile: np.ndarray, inside: np.ndarray, kernel: np.ndarray,
+                    min_dip) -> list[tuple[int, int]]:
+    """Local maxima of ``surface`` inside the component that stand apart: each at
+    least 3 px from a higher one, with ``profile`` dipping between them by
+    ``min_dip(height)`` or more.  Returns (row, col) positions, highest first."""
+    is_peak = (surface >= cv2.dilate(surface, kernel)) & (inside > 0)
+    pys, pxs = np.nonzero(is_peak)
+    if len(pys) < 2:
+        return []
+    values = surface[pys, pxs]
+    chosen: list[int] = []
+    for i in np.argsort(-values, kind="stable").tolist():
+        if not chosen:
+            chosen.append(i)
+            continue
+        j = min(chosen, key=lambda c: (pys[i] - pys[c]) ** 2 + (pxs[i] - pxs[c]) ** 2)
+        if (pys[i] - pys[j]) ** 2 + (pxs[i] - pxs[j]) ** 2 < 9:
+            continue
+        steps = 2 + int(np.hypot(pys[i] - pys[j], pxs[i] - pxs[j]))
+        ty = np.rint(np.linspace(pys[i], pys[j], steps)).astype(int)
+        tx = np.rint(np.linspace(pxs[i], pxs[j], steps)).astype(int)
+        if profile[pys[i], pxs[i]] - profile[ty, tx].min() >= min_dip(values[i]):
+            chosen.append(i)
+    return [(int(pys[i]), int(pxs[i])) for i in chosen]
 
 
 def build_contrast(params: ContrastParams) -> Detector:

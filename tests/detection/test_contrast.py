@@ -1,0 +1,138 @@
+"""The default detector on frames with known answers."""
+
+import cv2
+import numpy as np
+import pytest
+
+from antiscatter.detection import detect, make_detector
+from antiscatter.detection.contrast import ContrastParams, downsample, working_factor
+from antiscatter.evaluate import Matching, evaluate_scenario, summarise
+from antiscatter.simulate.background import fractal_noise, gradient
+
+
+def scene(size, discs, *, background="gradient", noise=2.0, seed=0):
+    """A grey-level frame: background plus blurred discs (x, y, r, contrast), with Gaussian noise."""
+    width, height = size
+    rng = np.random.default_rng(seed)
+    if background == "gradient":
+        base = 20 + 80 * gradient(size)
+    elif background == "texture":
+        base = 30 + 50 * fractal_noise(size, rng, octaves=4, base=4)
+    else:
+        base = np.full((height, width), 30.0, np.float32)
+    light = np.zeros((height, width), np.float32)
+    for x, y, r, contrast in discs:
+        disc = np.zeros((height, width), np.float32)
+        cv2.circle(disc, (round(x * 16), round(y * 16)), round(r * 16), 1.0, -1, cv2.LINE_AA, 4)
+        light += contrast * cv2.GaussianBlur(disc, (0, 0), 0.7)
+    frame = base + light + rng.normal(0, noise, (height, width))
+    grey = np.clip(np.rint(frame), 0, 255).astype(np.uint8)
+    return cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)
+
+
+DISCS = [(100.3, 80.6, 2.0, 60), (300.0, 120.0, 3.0, 40), (500.5, 90.2, 5.0, 120), (650.0, 300.0, 8.0, 200),
+         (120.0, 400.0, 4.0, 30), (400.7, 450.3, 6.0, 80), (700.0, 520.0, 2.5, 150)]
+
+
+@pytest.mark.parametrize("background", ["gradient", "texture", "flat"])
+def test_isolated_discs_of_several_sizes_and_contrasts_are_found(background):
+    frame = scene((800, 600), DISCS, background=background)
+    found = detect(frame, "contrast")
+    for x, y, r, _ in DISCS:
+        d = np.hypot(found.centres[:, 0] - x, found.centres[:, 1] - y)
+        i = int(np.argmin(d))
+        assert d[i] <= 1.0, (x, y, r, d[i])
+        assert found.radii[i] >= r  # the hole covers the particle
+        assert found.radii[i] <= r + 4
+    if background != "texture":
+        assert len(found) <= len(DISCS) + 3  # at most a few spurious spots
+    # on texture a single frame cannot tell bright texture from particles: the
+    # learnt background handles that (test_static_texture_is_learnt...)
+
+
+def test_small_frames_work_at_full_resolution():
+    assert working_factor(800) == 2 and working_factor(384) == 1 and working_factor(800, 1) == 1
+    frame = scene((300, 200), [(60.0, 50.0, 1.5, 60), (200.2, 120.7, 3.0, 80)], background="flat")
+    assert downsample(frame, factor=1).shape == (200, 300)
+    found = detect(frame, "contrast")
+    assert len(found) == 2
+    assert np.hypot(*(found.centres[np.argmin(found.centres[:, 0])] - [60, 50])) < 1.0
+
+
+def test_two_touching_discs_are_found_as_two():
+    frame = scene((400, 300), [(200.0, 150.0, 5.0, 150), (210.0, 150.0, 5.0, 150)], background="flat", noise=1.5)
+    found = detect(frame, "contrast")
+    assert len(found) == 2
+    xs = sorted(found.centres[:, 0])
+    assert abs(xs[0] - 200) < 1.5 and abs(xs[1] - 210) < 1.5
+    assert np.allclose(found.centres[:, 1], 150, atol=1.0)
+
+
+def test_split_can_be_switched_off():
+    frame = scene((400, 300), [(200.0, 150.0, 5.0, 150), (210.0, 150.0, 5.0, 150)], background="flat", noise=1.5)
+    assert len(detect(frame, "contrast", split=False)) == 1
+
+
+def test_bright_smooth_patch_larger_than_any_particle_is_rejected():
+    frame = scene((800, 600), [(100.0, 100.0, 4.0, 120)], background="flat")
+    cv2.circle(frame, (500, 350), 90, (200, 200, 200), -1)  # a lit rock, not backscatter
+    frame = cv2.GaussianBlur(frame, (0, 0), 3)
+    found = detect(frame, "contrast")
+    assert not (np.hypot(found.centres[:, 0] - 500, found.centres[:, 1] - 350) < 60).any()
+    assert (np.hypot(found.centres[:, 0] - 100, found.centres[:, 1] - 100) < 1.5).any()
+
+
+def test_zero_particles_give_an_empty_result_of_the_normal_shape():
+    found = detect(scene((640, 480), [], background="gradient"), "contrast")
+    assert found.centres.shape[1] == 2 and found.radii.ndim == 1
+    assert len(found) <= 3
+    empty = detect(np.zeros((480, 640, 3), np.uint8), "contrast")
+    assert empty.centres.shape == (0, 2) and empty.radii.shape == (0,)
+
+
+def test_grey_and_y_plane_input():
+    frame = scene((640, 480), DISCS[:3], background="flat")
+    a = detect(frame, "contrast")
+    b = detect(frame[..., 1].copy(), "contrast")
+    np.testing.assert_allclose(a.centres, b.centres)
+
+
+def test_static_texture_is_learnt_and_stops_being_detected():
+    rng = np.random.default_rng(1)
+    base = np.full((300, 400), 40, np.uint8)
+    pebbles = [(int(x), int(y)) for x, y in rng.uniform(20, 380, (20, 2))]
+    for x, y in pebbles:
+        cv2.circle(base, (x, min(y, 280)), 3, 70, -1)
+    detector = make_detector("contrast", ContrastParams(memory=20))
+    counts = []
+    for i in range(40):
+        frame = np.clip(base + rng.normal(0, 2, base.shape), 0, 255).astype(np.uint8)
+        moving = frame.copy()
+        cv2.circle(moving, (50 + 7 * i, 150), 4, 220, -1)  # one real particle crossing
+        found = detector.detect(moving)
+        counts.append(len(found))
+        assert (np.hypot(found.centres[:, 0] - (50 + 7 * i), found.centres[:, 1] - 150) < 1.5).any()
+    assert counts[0] >= 10  # the first frame cannot tell pebbles from particles
+    assert counts[-1] <= 3  # after about a second of frames it can
+    single = make_detector("contrast", ContrastParams(memory=0))
+    for _ in range(5):
+        last = len(single.detect(base))
+    assert last >= 10  # memory=0 stays single-frame
+
+
+@pytest.mark.parametrize("bad, message", [({"k": 0}, "k: got 0, allowed > 0"),
+                                          ({"cell": 5}, "cell: got 5, allowed an even integer >= 4"),
+                                          ({"factor": 3}, "factor: got 3, allowed 0 (automatic), 1 or 2"),
+                                          ({"memory": -1}, "memory: got -1, allowed >= 0")])
+def test_bad_parameters(bad, message):
+    with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        ContrastParams(**bad)
+
+
+@pytest.mark.parametrize("preset", ["bubbles", "textured"])
+def test_f1_at_least_seeds_on_a_small_fixed_scenario(preset):
+    detectors = {"seed": make_detector("seed"), "contrast": make_detector("contrast")}
+    scores = evaluate_scenario(preset, (400, 300), 12, 3, detectors, Matching())
+    seed, contrast = summarise(scores["seed"]), summarise(scores["contrast"])
+    assert contrast["f1"] >= seed["f1"]
+    assert contrast["recall"] >= seed["recall"]
