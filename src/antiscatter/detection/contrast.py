@@ -156,7 +156,7 @@ class BackgroundModel:
     #: frames a pixel must stay under an unchanging "particle" before it counts as scene
     PERSIST = 8
 
-    def learn(self, half: np.ndarray, particles: np.ndarray, noise: np.ndarray) -> None:
+    def learn(self, half: np.ndarray, particles: np.ndarray, steady_limit: np.ndarray) -> None:
         """Update from this frame.
 
         Pixels without a particle learn at the full rate.  Under a particle
@@ -171,8 +171,8 @@ class BackgroundModel:
         rate = min(1.0, max(self.alpha, 1.0 / (self._frames + 2)))
         learn = cv2.bitwise_not(particles)
         if self._previous is not None and self._previous.shape == half.shape:
-            change = cv2.absdiff(half, self._previous).astype(np.float32)
-            steady = cv2.bitwise_and(cv2.compare(change, 3.0 * noise, cv2.CMP_LE), particles)
+            change = cv2.absdiff(half, self._previous)
+            steady = cv2.bitwise_and(cv2.compare(change, steady_limit, cv2.CMP_LE), particles)
             if self._persist is None or self._persist.shape != half.shape:
                 self._persist = np.zeros(half.shape, np.uint8)
             cv2.add(self._persist, 1, dst=self._persist, mask=steady)
@@ -188,25 +188,38 @@ class BackgroundModel:
 
 def threshold_mask(half: np.ndarray, background: np.ndarray, *, cell: int, k: float,
                    min_contrast: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(candidate mask uint8 (h, w), excess over background float32 (h, w), threshold float32 (h, w)).
+    """(candidate mask uint8, positive excess over the background uint8, noise per coarse cell float32).
 
     Particles only ever add light, so the noise is measured on the *dark* side:
     per coarse cell, the mean of max(background - frame, 0), which for symmetric
     noise of spread s is 0.399 s, whatever bright particles the cell holds.  A
-    3x3-cell median smooths the estimate.
+    3x3-cell median smooths the estimate.  A pixel is a candidate where the
+    excess exceeds max(k * noise, min_contrast).
     """
-    excess = cv2.subtract(half.astype(np.float32), background)
     h, w = half.shape
-    c = max(cell, 1)
-    cw, ch = max(w // c, 3), max(h // c, 3)
-    deficit = cv2.max(-excess, 0.0)
-    spread = cv2.resize(deficit, (cw, ch), interpolation=cv2.INTER_AREA)
-    spread = cv2.medianBlur(spread, 3)  # float32: 3x3 median over cells
-    noise = spread * 2.5066  # E[max(-x, 0)] = s / sqrt(2 pi) for x ~ N(0, s)
-    limit = np.maximum(k * noise, min_contrast)
-    limit_full = cv2.resize(limit, (w, h), interpolation=cv2.INTER_LINEAR)
-    mask = cv2.compare(excess, limit_full, cv2.CMP_GT)
-    return mask, excess, limit_full
+    cw, ch = max(w // cell, 3), max(h // cell, 3)
+    base = cv2.convertScaleAbs(background)  # rounded, saturated uint8 (the background is >= 0)
+    deficit = cv2.subtract(base, half).astype(np.float32)  # max(background - frame, 0)
+    spread = cv2.medianBlur(cv2.resize(deficit, (cw, ch), interpolation=cv2.INTER_AREA), 3)
+    noise = spread * np.float32(2.5066)  # E[max(-x, 0)] = s / sqrt(2 pi) for x ~ N(0, s)
+    limit = cv2.resize(np.maximum(k * noise, np.float32(min_contrast)), (w, h), interpolation=cv2.INTER_LINEAR)
+    excess = cv2.subtract(half, base)  # max(frame - background, 0), uint8
+    mask = cv2.compare(excess.astype(np.float32), limit, cv2.CMP_GT)
+    return mask, excess, noise
+
+
+def noise_at(noise: np.ndarray, x: np.ndarray, y: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """The coarse noise map sampled at working-resolution pixels (x, y)."""
+    ch, cw = noise.shape
+    h, w = shape
+    return noise[np.minimum(y * ch // h, ch - 1), np.minimum(x * cw // w, cw - 1)]
+
+
+def steady_limit(noise: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """3 noise units per pixel as uint8 (rounded up): the most a static pixel changes between frames."""
+    h, w = shape
+    return cv2.resize(np.ceil(3.0 * noise).clip(1, 255).astype(np.uint8), (w, h),
+                      interpolation=cv2.INTER_NEAREST)
 
 
 def label(mask: np.ndarray) -> dict[str, np.ndarray]:
@@ -224,19 +237,19 @@ def label(mask: np.ndarray) -> dict[str, np.ndarray]:
     return {"labels": labels[y, x].astype(np.int64) - 1, "x": x, "y": y, "count": count - 1}
 
 
-def measure(components: dict[str, np.ndarray], excess: np.ndarray, limit: np.ndarray, *, k: float,
+def measure(components: dict[str, np.ndarray], excess: np.ndarray, noise: np.ndarray, *,
             halo: float, max_radius: float, split: bool, frame_width: int, factor: int = 2) -> Detections:
     """Centres (brightness-weighted) and covering radii of the components, in full-resolution pixels.
 
-    limit: the detection threshold per pixel (k noise units), used to judge peaks when splitting.
+    excess: uint8 light above the background; noise: the coarse noise map (for splitting).
     """
     n = components["count"]
     if n == 0:
         return Detections.empty()
     lab, x, y = components["labels"], components["x"], components["y"]
-    weight = np.maximum(excess[y, x], 1e-3).astype(np.float64)
+    weight = np.maximum(excess[y, x].astype(np.float64), 1e-3)
     if split:
-        lab, n = _split_peaks(lab, x, y, weight, excess, limit, k, n)
+        lab, n = _split_peaks(lab, x, y, weight, excess, noise_at(noise, x, y, excess.shape), n)
     wsum = np.bincount(lab, weights=weight, minlength=n)
     cx = np.bincount(lab, weights=weight * x, minlength=n) / wsum
     cy = np.bincount(lab, weights=weight * y, minlength=n) / wsum
@@ -258,7 +271,7 @@ def measure(components: dict[str, np.ndarray], excess: np.ndarray, limit: np.nda
 
 
 def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, excess: np.ndarray,
-                 limit: np.ndarray, k: float, n: int) -> tuple[np.ndarray, int]:
+                 noise: np.ndarray, n: int) -> tuple[np.ndarray, int]:
     """Split components that hold two or more particles (touching or overlapping).
 
     Within a component (of 8 pixels or more), the excess is smoothed (3x3) and
@@ -272,13 +285,12 @@ def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarr
     """
     area = np.bincount(lab, minlength=n)
     # candidates, found without Python loops: components holding two or more 5x5 maxima
-    smooth_all = cv2.blur(excess, (3, 3))
+    smooth_all = cv2.boxFilter(excess, cv2.CV_16U, (3, 3), normalize=False)  # exact 3x3 sums: no rounding ties
     is_max = smooth_all[y, x] >= cv2.dilate(smooth_all, np.ones((5, 5), np.uint8))[y, x]
     maxima = np.bincount(lab[is_max], minlength=n)
     big = np.flatnonzero((area >= 8) & (maxima >= 2))
     if len(big) == 0:
         return lab, n
-    noise = limit[y, x] / k
     lab = lab.copy()
     next_label = n
     order = np.argsort(lab, kind="stable")
@@ -355,20 +367,20 @@ def build_contrast(params: ContrastParams) -> Detector:
 
     def stage_threshold(value: tuple[np.ndarray, np.ndarray]):
         half, background = value
-        mask, excess, limit = threshold_mask(half, background, cell=state["cell"], k=params.k,
+        mask, excess, noise = threshold_mask(half, background, cell=state["cell"], k=params.k,
                                              min_contrast=params.min_contrast)
-        return half, mask, excess, limit
+        return half, mask, excess, noise
 
     def stage_label(value):
-        half, mask, excess, limit = value
-        return half, mask, excess, limit, label(mask)
+        half, mask, excess, noise = value
+        return half, mask, excess, noise, label(mask)
 
     def stage_measure(value) -> Detections:
-        half, mask, excess, limit, components = value
-        found = measure(components, excess, limit, k=params.k, halo=params.halo,
-                        max_radius=params.max_radius, split=params.split, frame_width=state["width"],
-                        factor=state["factor"])
-        model.learn(half, cv2.dilate(mask, None), limit / params.k)
+        half, mask, excess, noise, components = value
+        found = measure(components, excess, noise, halo=params.halo, max_radius=params.max_radius,
+                        split=params.split, frame_width=state["width"], factor=state["factor"])
+        if model.alpha:
+            model.learn(half, cv2.dilate(mask, None), steady_limit(noise, half.shape))
         return found
 
     stages = (
