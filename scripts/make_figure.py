@@ -20,14 +20,14 @@ def main(out: str = "docs/pipeline.png") -> None:
     for _ in range(240):
         scene.step()
     frame = scene.render()
-    found = make_detector("seed").detect(frame)
+    found = make_detector("contrast").detect(frame)
     overlay = frame.copy()
     for (x, y), r in zip(found.centres.tolist(), found.radii.tolist()):
         cv2.circle(overlay, (round(x), round(y)), max(round(r), 1), (0, 0, 255), 2)
     pattern = render_pattern(found, size=(800, 600), mapping=scale_mapping(scene.size, (800, 600)),
                              margin=2)
     panels = [frame, overlay, cv2.cvtColor(pattern, cv2.COLOR_GRAY2BGR)]
-    titles = ["camera frame (simulator)", "detections (seed detector)", "projector pattern"]
+    titles = ["camera frame (simulator)", "detections (contrast detector)", "projector pattern"]
     labelled = []
     for image, title in zip(panels, titles):
         image = cv2.resize(image, (400, 300), interpolation=cv2.INTER_AREA)

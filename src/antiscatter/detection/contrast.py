@@ -56,7 +56,8 @@ class ContrastParams:
 
     k: detection threshold in units of the local noise (default 4).
     min_contrast: smallest excess over the background, grey levels (default 4).
-    cell: background cell size in full-resolution pixels (default 16).
+    cell: background cell size in full-resolution pixels for frames up to 800 px wide, scaled with
+        the width above that (default 16).
     memory: frames over which the per-pixel background is learnt; 0 = single-frame (default 20).
     halo: pixels added to each radius for the particle's blur halo (default 1).
     max_radius: largest particle radius in pixels, for frames up to 800 px wide; scaled with the
@@ -358,7 +359,9 @@ def build_contrast(params: ContrastParams) -> Detector:
 
     def stage_downsample(image: np.ndarray) -> np.ndarray:
         factor = working_factor(image.shape[1], params.factor)
-        state["factor"], state["cell"], state["width"] = factor, max(params.cell // factor, 2), image.shape[1]
+        # cells cover the same share of the view at any width above 800 px
+        cell = params.cell * max(1.0, image.shape[1] / 800.0)
+        state["factor"], state["cell"], state["width"] = factor, max(int(round(cell / factor)), 2), image.shape[1]
         model.cell = state["cell"]
         return downsample(image, factor=factor)
 
