@@ -17,10 +17,12 @@ from antiscatter.simulate import make_scene
 
 def main(out: str = "docs/pipeline.png") -> None:
     scene = make_scene("seed", rng=np.random.default_rng(0))
-    for _ in range(240):
+    detector = make_detector("contrast")
+    for _ in range(240):  # the detector sees the stream, as in a run
+        detector.detect(scene.render())
         scene.step()
     frame = scene.render()
-    found = make_detector("contrast").detect(frame)
+    found = detector.detect(frame)
     overlay = frame.copy()
     for (x, y), r in zip(found.centres.tolist(), found.radii.tolist()):
         cv2.circle(overlay, (round(x), round(y)), max(round(r), 1), (0, 0, 255), 2)
