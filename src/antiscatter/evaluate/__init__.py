@@ -1,6 +1,6 @@
 """Accuracy against ground truth: matching, metrics, drivers and the scoreboard."""
 
-from .match import gates, match
+from ..assignment import gates, match
 from .metrics import FrameScore, hole_mask, prf, score_frame, summarise
 from .runs import Matching, evaluate_csv, evaluate_folder, evaluate_pairs, evaluate_scenario
 

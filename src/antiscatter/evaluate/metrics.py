@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .match import gates, match
+from ..assignment import gates, match
 
 __all__ = ["FrameScore", "score_frame", "hole_mask", "summarise", "prf"]
 

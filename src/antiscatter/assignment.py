@@ -1,4 +1,7 @@
-"""Particle-level matching of detections to truth, one frame at a time."""
+"""Gated, sparse, optimal one-to-one assignment of points to points.
+
+Used to match detections to truth (evaluation) and to tracks (tracking).
+"""
 
 from __future__ import annotations
 
