@@ -20,15 +20,17 @@ def gates(truth_radii: np.ndarray, *, min_gate: float = 2.0, scale: float = 1.0)
     return np.maximum(scale * np.asarray(truth_radii, dtype=np.float64), min_gate)
 
 
-def match(truth_centres: np.ndarray, truth_gates: np.ndarray,
-          det_centres: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def match(truth_centres: np.ndarray, truth_gates: np.ndarray, det_centres: np.ndarray, *,
+          neighbours: int = 8) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Optimal one-to-one assignment on centre distance, gated per truth particle.
 
     Only pairs closer than the truth particle's gate may match; among those the
     assignment maximises the number of matches, then minimises the summed
-    distance.  The problem is split into the connected groups of candidate
-    pairs (sparse, via a k-d tree), each solved exactly with SciPy's
-    ``linear_sum_assignment``, so hundreds of particles cost little.
+    distance.  The candidates of each truth point are its ``neighbours``
+    nearest detections inside its gate (a k-d tree query); the problem is split
+    into the connected groups of candidate pairs, each solved exactly with
+    SciPy's ``linear_sum_assignment``, so hundreds of particles cost little.
+    (Exact whenever no gate holds more than ``neighbours`` detections.)
 
     Parameters
     ----------
@@ -48,32 +50,56 @@ def match(truth_centres: np.ndarray, truth_gates: np.ndarray,
     if nt == 0 or nd == 0:
         return np.empty((0, 2), np.int64), np.arange(nt), np.arange(nd)
     tree = cKDTree(det_centres)
-    candidates = tree.query_ball_point(truth_centres, r=np.asarray(truth_gates, dtype=np.float64))
-    rows = np.fromiter((t for t, ds in enumerate(candidates) for _ in ds), np.int64)
-    cols = np.fromiter((d for ds in candidates for d in ds), np.int64)
-    if len(rows) == 0:
+    truth_gates = np.asarray(truth_gates, dtype=np.float64)
+    # the `neighbours` nearest detections within each gate are the candidates
+    k = min(neighbours, nd)
+    dist, cols = tree.query(truth_centres, k=k, distance_upper_bound=float(truth_gates.max()) * (1 + 1e-9))
+    dist, cols = dist.reshape(nt, k), cols.reshape(nt, k)
+    ok = dist <= truth_gates[:, None]
+    if not ok.any():
         return np.empty((0, 2), np.int64), np.arange(nt), np.arange(nd)
-    dist = np.hypot(*(truth_centres[rows] - det_centres[cols]).T)
+    rows = np.broadcast_to(np.arange(nt)[:, None], ok.shape)[ok]
+    cols, dist = cols[ok].astype(np.int64), dist[ok]
     graph = coo_matrix((np.ones(len(rows)), (rows, nt + cols)), shape=(nt + nd, nt + nd))
     _, component = connected_components(graph, directed=False)
     edge_component = component[rows]
-    order = np.argsort(edge_component, kind="stable")
-    bounds = np.flatnonzero(np.diff(edge_component[order])) + 1
-    pairs = []
-    for group in np.split(order, bounds):
-        r, c, d = rows[group], cols[group], dist[group]
-        if len(group) == 1:
-            pairs.append((r[0], c[0]))
-            continue
-        ut, ti = np.unique(r, return_inverse=True)
-        ud, di = np.unique(c, return_inverse=True)
-        big = d.sum() + 1.0  # any infeasible pair costs more than all feasible ones
+    edges_in = np.bincount(edge_component)
+    # most groups are one candidate pair: matched without a loop
+    single = edges_in[edge_component] == 1
+    pair_rows, pair_cols = [rows[single]], [cols[single]]
+    multi = np.flatnonzero(~single)
+    if len(multi):
+        ut, ti = np.unique(rows[multi], return_inverse=True)
+        ud, di = np.unique(cols[multi], return_inverse=True)
+    if len(multi) and len(ut) * len(ud) <= 40_000:
+        # the groups are independent: one small dense problem solves them all at once
+        big = dist[multi].sum() + 1.0  # any infeasible pair costs more than all feasible ones
         cost = np.full((len(ut), len(ud)), big)
-        cost[ti, di] = d
+        cost[ti, di] = dist[multi]
         a, b = linear_sum_assignment(cost)
         feasible = cost[a, b] < big
-        pairs.extend(zip(ut[a[feasible]], ud[b[feasible]]))
-    matches = np.array(sorted(pairs), np.int64).reshape(-1, 2)
-    unmatched_truth = np.setdiff1d(np.arange(nt), matches[:, 0])
-    unmatched_dets = np.setdiff1d(np.arange(nd), matches[:, 1])
+        pair_rows.append(ut[a[feasible]])
+        pair_cols.append(ud[b[feasible]])
+    elif len(multi):
+        order = multi[np.argsort(edge_component[multi], kind="stable")]
+        bounds = np.flatnonzero(np.diff(edge_component[order])) + 1
+        for group in np.split(order, bounds):
+            r, c, d = rows[group], cols[group], dist[group]
+            ut, ti = np.unique(r, return_inverse=True)
+            ud, di = np.unique(c, return_inverse=True)
+            big = d.sum() + 1.0  # any infeasible pair costs more than all feasible ones
+            cost = np.full((len(ut), len(ud)), big)
+            cost[ti, di] = d
+            a, b = linear_sum_assignment(cost)
+            feasible = cost[a, b] < big
+            pair_rows.append(ut[a[feasible]])
+            pair_cols.append(ud[b[feasible]])
+    matched_rows, matched_cols = np.concatenate(pair_rows), np.concatenate(pair_cols)
+    order = np.argsort(matched_rows, kind="stable")
+    matches = np.column_stack([matched_rows[order], matched_cols[order]]).astype(np.int64)
+    free_truth = np.ones(nt, bool)
+    free_truth[matches[:, 0]] = False
+    free_dets = np.ones(nd, bool)
+    free_dets[matches[:, 1]] = False
+    unmatched_truth, unmatched_dets = np.flatnonzero(free_truth), np.flatnonzero(free_dets)
     return matches, unmatched_truth, unmatched_dets

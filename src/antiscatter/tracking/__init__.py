@@ -1,0 +1,10 @@
+"""Tracking and latency-compensated prediction: put the holes where the particles will be.
+
+:class:`Tracker` is the one stateful object: call ``update(detections,
+timestamp)`` every frame, even with none; ask ``holes(at)`` for where the
+particles will be when the light is on.
+"""
+
+from .kalman import Tracker, Tracks
+
+__all__ = ["Tracker", "Tracks"]
