@@ -64,6 +64,14 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("-p", "--param", action="append", metavar="KEY=VALUE", default=[],
                    help="a parameter of the chosen detector, e.g. threshold=180 or equalise=true "
                         "(seed: threshold, blur_kernel, canny_sigma, equalise); repeatable")
+    g = run.add_argument_group("tracking")
+    g.add_argument("--track", action="store_true", default=None,
+                   help="track particles (Kalman) and draw holes from the tracks; coasting keeps a hole on a "
+                        "particle that went dark; the detections CSV gains track_id")
+    g.add_argument("--no-predict", dest="predict", action="store_false", default=None,
+                   help="with --track: draw holes where particles were, not where they will be")
+    g.add_argument("--latency-ms", type=float, help="with --track: predict over this capture-to-light time "
+                   "(default: the measured one)")
     g = run.add_argument_group("pattern")
     g.add_argument("--projector-size", metavar="WxH", help="projector resolution (default 1280x800)")
     g.add_argument("--margin", type=float, help="pixels added to every hole's radius (default 0)")
@@ -148,6 +156,9 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--rise", type=float, default=20.0, help="real pairs: particle where max-channel "
                     "|degraded - clean| exceeds this (default 20)")
     ev.add_argument("--min-area", type=int, default=3, help="real pairs: smallest particle region, px (default 3)")
+    ev.add_argument("--track", action="store_true", help="with --scenario: also run the tracker and report "
+                    "MOTA, IDF1, identity switches, fragmentation and prediction error at +1..+3 frames (a "
+                    "detections CSV with a track_id column gets the tracking figures by itself)")
     ev.add_argument("--json", action="store_true", help="print the results as JSON")
     ev.add_argument("--csv", metavar="FILE", help="write per-frame figures")
     ev.add_argument("--plot", metavar="FILE.png", help="precision-recall over the threshold and errors")
@@ -181,6 +192,8 @@ def _detector_from(args: argparse.Namespace):
 def _evaluate(args: argparse.Namespace) -> int:
     import json
     from pathlib import Path
+
+    import numpy as np
 
     from .evaluate import Matching, evaluate_csv, evaluate_folder, evaluate_pairs, summarise
     from .evaluate.reference import msrb_pairs, pair_files
@@ -220,11 +233,28 @@ def _evaluate(args: argparse.Namespace) -> int:
         print(json.dumps(data, indent=2) if args.json else markdown)
         print(f"wrote {report}", file=sys.stderr)
         return 0
+    extra: dict = {}
+    if args.track and not args.scenario:
+        raise UsageError("--track goes with --scenario (a detections CSV with track_id is scored for tracking "
+                         "by itself)")
     if args.truth or args.detections:
         if not (args.truth and args.detections):
             raise UsageError("--truth and --detections go together")
+        from .evaluate.runs import read_csv_pair
+        from .evaluate.tracking import tracking_summary
+
         scores = evaluate_csv(Path(args.truth), Path(args.detections), m)
         title = f"{args.detections} against {args.truth}"
+        truth, found, frames_range = read_csv_pair(Path(args.truth), Path(args.detections), m)
+        has_ids = any((v[2] >= 0).any() for v in found.values())
+        if has_ids:
+            if any(t.ids is None or (t.ids < 0).any() for t in truth.values()):
+                raise UsageError(f"{args.truth}: tracking figures need the 'Bubble ID' column")
+            empty_t = (np.empty(0, np.int64), np.empty((0, 2)), np.empty(0), np.empty(0, bool))
+            empty_d = (np.empty((0, 2)), np.empty(0), np.empty(0, np.int64))
+            extra["tracking"] = tracking_summary(
+                ((truth[f].ids, truth[f].centres, truth[f].radii, truth[f].counted) if f in truth else empty_t)
+                + (found.get(f, empty_d)[0], found.get(f, empty_d)[2]) for f in frames_range)
     else:
         name, params, detector = _detector_from(args)
         if args.folder:
@@ -243,6 +273,13 @@ def _evaluate(args: argparse.Namespace) -> int:
             frames = min(s.frames, args.frames) if args.frames else s.frames
             run = lambda d: evaluate_scenario(s.preset, s.size, frames, s.seed, {"d": d}, m)["d"]  # noqa: E731
             title = f"detector {name} on scenario {s.name} ({frames} frames)"
+            if args.track:
+                from .evaluate.runs import evaluate_tracking, scenario_truth_frames
+                from .simulate import PRESETS, make_scene
+
+                fps = make_scene(s.preset, rng=np.random.default_rng(0), size=(8, 8)).fps
+                extra.update(evaluate_tracking(scenario_truth_frames(s.preset, s.size, frames, s.seed, m),
+                                               detector, m, fps=fps))
         else:
             if not (args.degraded and args.clean):
                 raise UsageError("--degraded and --clean go together")
@@ -258,9 +295,17 @@ def _evaluate(args: argparse.Namespace) -> int:
     if args.plot:
         plot_evaluation(args.plot, scores, sweep, title=title)
     if args.json:
-        print(json.dumps({"input": title, "overall": summary, "frames": [s.row() for s in scores]}, indent=2))
+        print(json.dumps({"input": title, "overall": summary, **extra, "frames": [s.row() for s in scores]},
+                         indent=2))
     else:
         print(format_summary(summary, title=title))
+        if "tracking" in extra:
+            t = extra["tracking"]
+            print(f"  tracking: MOTA {t['mota']:.3f}, IDF1 {t['idf1']:.3f}, identity switches "
+                  f"{t['id_switches']}, fragmentations {t['fragmentations']}")
+        if "prediction" in extra:
+            print("  prediction error: " + ", ".join(
+                f"{k} frames {v['mean_px']:.2f} px (p95 {v['p95_px']:.2f})" for k, v in extra["prediction"].items()))
     return 0
 
 
@@ -349,6 +394,7 @@ def _run_config(args: argparse.Namespace):
                    "seed": args.seed, "size": args.size, "camera_fps": args.camera_fps},
         "detector": {"name": args.detector},
         "pattern": {"margin": args.margin},
+        "track": {"enabled": args.track, "predict": args.predict, "latency_ms": args.latency_ms},
         "output": {"outputs": tuple(args.output) if args.output else None},
         "run": {"frames": args.frames, "fps": args.fps, "nice": args.nice,
                 "metrics": args.metrics, "detections": args.detections},

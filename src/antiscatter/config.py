@@ -2,7 +2,7 @@
 
 A TOML file (``--config``) has the sections ``[source]``, ``[detector]`` (with
 a sub-table ``[detector.<name>]`` holding that detector's parameters),
-``[pattern]``, ``[output]`` and ``[run]``; their keys are the fields below.
+``[pattern]``, ``[output]``, ``[run]`` and ``[track]``; their keys are the fields below.
 Command-line flags set the same fields and win over the file.  Unknown keys
 and bad values are rejected naming the key, the value and what is allowed.
 """
@@ -21,7 +21,7 @@ import numpy as np
 
 from .errors import UsageError
 
-__all__ = ["SourceConfig", "DetectorConfig", "PatternConfig", "OutputConfig", "RunConfig",
+__all__ = ["SourceConfig", "DetectorConfig", "PatternConfig", "OutputConfig", "RunConfig", "TrackConfig",
            "Config", "load_config", "build_section", "parse_param", "parse_size"]
 
 
@@ -118,6 +118,32 @@ def _as_matrix(value: Any) -> np.ndarray:
 
 
 @dataclass(frozen=True)
+class TrackConfig:
+    """Tracking and latency-compensated prediction.
+
+    enabled: track particles (Kalman filter) and draw holes from the tracks.
+    predict: move each hole along its particle's velocity to the time the light is on.
+    latency_ms: capture-to-light time to predict over; negative = measured by the runtime.
+    confirm_hits: detections before a track is confirmed (and predicted).
+    max_misses: frames a confirmed track keeps its hole without a detection (coasting).
+    """
+
+    enabled: bool = False
+    predict: bool = True
+    latency_ms: float = -1.0
+    confirm_hits: int = 3
+    max_misses: int = 5
+
+    def __post_init__(self) -> None:
+        if not math.isfinite(self.latency_ms):
+            raise ValueError(f"latency_ms: got {self.latency_ms}, allowed a number (negative = measured)")
+        if self.confirm_hits < 1:
+            raise ValueError(f"confirm_hits: got {self.confirm_hits}, allowed >= 1")
+        if self.max_misses < 0:
+            raise ValueError(f"max_misses: got {self.max_misses}, allowed >= 0")
+
+
+@dataclass(frozen=True)
 class OutputConfig:
     """outputs: light outputs, any of framebuffer[:/dev/fbN], window, files:PATH, none, auto."""
 
@@ -164,10 +190,11 @@ class Config:
     pattern: PatternConfig = field(default_factory=PatternConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
     run: RunConfig = field(default_factory=RunConfig)
+    track: TrackConfig = field(default_factory=TrackConfig)
 
 
 _SECTIONS = {"source": SourceConfig, "detector": DetectorConfig, "pattern": PatternConfig,
-             "output": OutputConfig, "run": RunConfig}
+             "output": OutputConfig, "run": RunConfig, "track": TrackConfig}
 
 
 def _type_name(tp: Any) -> str:
@@ -285,7 +312,8 @@ def load_config(path: str | Path | None = None, overrides: dict[str, dict[str, A
     except UsageError as exc:
         raise UsageError(f"{where}: {exc}" if path is not None and not detector_overrides else str(exc)) from None
     return Config(source=sections["source"], detector=sections["detector"], detector_params=params,
-                  pattern=sections["pattern"], output=sections["output"], run=sections["run"])
+                  pattern=sections["pattern"], output=sections["output"], run=sections["run"],
+                  track=sections["track"])
 
 
 def parse_param(text: str, params_cls: type, *, detector: str) -> tuple[str, Any]:

@@ -47,6 +47,7 @@ REPORT_COLUMNS = (
 EXTRA_COLUMNS = (
     "Frame",
     "Capture Timestamp (ns)",
+    "Tracking Duration (s)",
     "Pattern Rendering Duration (s)",
     "Output Duration (s)",
     "End-to-end Latency (s)",
@@ -207,7 +208,15 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None)
     stage_columns = [f"{s.label} Duration (s)" for s in detector.stages]
     summary = RunSummary()
     timed = ["Capture Duration (s)", *stage_columns, "Total frame processing time (s)",
-             "Pattern Rendering Duration (s)", "Output Duration (s)", "End-to-end Latency (s)"]
+             "Tracking Duration (s)", "Pattern Rendering Duration (s)", "Output Duration (s)",
+             "End-to-end Latency (s)"]
+    tc = config.track
+    tracker = None
+    if tc.enabled:
+        from .tracking import Tracker
+        tracker = Tracker(confirm_hits=tc.confirm_hits, max_misses=tc.max_misses)
+    if tracker is None:
+        timed.remove("Tracking Duration (s)")
     summary.durations = {c: RunningStats() for c in timed}
     index_of = {c: i for i, c in enumerate(columns)}
 
@@ -227,11 +236,16 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None)
             handle, metrics_writer = _open_csv(rc.metrics, columns)
             stack.callback(handle.close)
         if rc.detections:
-            handle, detections_writer = _open_csv(rc.detections, ["frame", "x", "y", "radius"])
+            header = ["frame", "x", "y", "radius"] + (["track_id"] if tracker is not None else [])
+            handle, detections_writer = _open_csv(rc.detections, header)
             stack.callback(handle.close)
+        tracking = ("" if tracker is None else
+                    ", tracking" + (" with prediction" if tc.predict else "")
+                    + (f" over {tc.latency_ms:g} ms" if tc.predict and tc.latency_ms >= 0 else ""))
         print(f"antiscatter run: source {config.source.spec} ({source.size[0]}x{source.size[1]}), "
-              f"detector {detector.name}, pattern {projector_size[0]}x{projector_size[1]}, "
+              f"detector {detector.name}{tracking}, pattern {projector_size[0]}x{projector_size[1]}, "
               f"output {names}", file=log)
+        latency_estimate = 0.0  # seconds, running mean of the measured capture-to-light time
 
         pattern_buffer = np.empty((projector_size[1], projector_size[0]), np.uint8)
         pacer = Pacer(rc.fps)
@@ -256,18 +270,34 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None)
                 break
             detections, stage_ns = time_stages(detector, frame.image, clock=clock)
             t_prev = t1 + sum(stage_ns)
-            pattern = render_pattern(detections, size=projector_size, mapping=mapping,
+            holes, track_ns, track_ids = detections, 0, None
+            if tracker is not None:
+                t_track = clock()
+                captured = frame.timestamp_ns / 1e9
+                tracks = tracker.update(detections, captured)
+                track_ids = tracks.detection_ids
+                if tc.predict:
+                    latency = tc.latency_ms / 1e3 if tc.latency_ms >= 0 else latency_estimate
+                    holes = tracker.holes(captured + latency)
+                else:
+                    holes = tracker.holes(captured)
+                track_ns = clock() - t_track
+                t_prev = clock()
+            pattern = render_pattern(holes, size=projector_size, mapping=mapping,
                                      margin=config.pattern.margin, out=pattern_buffer)
             t_pattern = clock()
             for output in outputs:
                 output.show(pattern, frame, detections)
             t_out = clock()
             latency_ns = time.monotonic_ns() - frame.timestamp_ns
+            # what the next frame's prediction should cover (a slow running mean)
+            latency_estimate += (latency_ns / 1e9 - latency_estimate) * (0.1 if summary.frames else 1.0)
 
             capture_s = (t1 - t0) / 1e9
             total_s = (t_prev - t0) / 1e9
             values = {"Capture Duration (s)": capture_s, "Total frame processing time (s)": total_s,
                       "Pattern Rendering Duration (s)": (t_pattern - t_prev) / 1e9,
+                      **({"Tracking Duration (s)": track_ns / 1e9} if tracker is not None else {}),
                       "Output Duration (s)": (t_out - t_pattern) / 1e9,
                       "End-to-end Latency (s)": latency_ns / 1e9}
             for column, ns in zip(stage_columns, stage_ns):
@@ -289,9 +319,15 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None)
                 row[index_of["Capture Timestamp (ns)"]] = frame.timestamp_ns
                 metrics_writer.writerow(row)
             if detections_writer is not None and len(detections):
-                detections_writer.writerows(
-                    (frame.index, f"{x:.3f}", f"{y:.3f}", f"{r:.3f}")
-                    for (x, y), r in zip(detections.centres.tolist(), detections.radii.tolist()))
+                if track_ids is None:
+                    detections_writer.writerows(
+                        (frame.index, f"{x:.3f}", f"{y:.3f}", f"{r:.3f}")
+                        for (x, y), r in zip(detections.centres.tolist(), detections.radii.tolist()))
+                else:
+                    detections_writer.writerows(
+                        (frame.index, f"{x:.3f}", f"{y:.3f}", f"{r:.3f}", i)
+                        for (x, y), r, i in zip(detections.centres.tolist(), detections.radii.tolist(),
+                                                track_ids.tolist()))
             if any(o.exit_requested for o in outputs):
                 summary.stop_reason = "stopped from the window (e)"
                 break

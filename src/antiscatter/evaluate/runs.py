@@ -66,8 +66,16 @@ def evaluate_csv(truth_path: Path, detections_path: Path, m: Matching) -> list[F
     truth = read_truth(truth_path, min_visibility=m.min_visibility, min_snr=m.min_snr)
     frames = range(0, max(truth) + 1) if truth else range(0)
     found = read_detections(detections_path, frames=frames, frames_source=str(truth_path))
-    empty = (np.empty((0, 2)), np.empty(0))
-    return [_score(f, truth.get(f), *found.get(f, empty), m) for f in frames]
+    empty = (np.empty((0, 2)), np.empty(0), np.empty(0, np.int64))
+    return [_score(f, truth.get(f), *found.get(f, empty)[:2], m) for f in frames]
+
+
+def read_csv_pair(truth_path: Path, detections_path: Path, m: Matching):
+    """(truth per frame, detections per frame, frame range) of a truth CSV and a detections CSV."""
+    truth = read_truth(truth_path, min_visibility=m.min_visibility, min_snr=m.min_snr)
+    frames = range(0, max(truth) + 1) if truth else range(0)
+    found = read_detections(detections_path, frames=frames, frames_source=str(truth_path))
+    return truth, found, frames
 
 
 def evaluate_folder(folder: Path, detector: Detector, m: Matching) -> list[FrameScore]:
@@ -114,7 +122,8 @@ def scenario_frames(preset: str, size: tuple[int, int], frames: int,
 def truth_of(scene_truth: Any, m: Matching) -> FrameTruth:
     """A simulator Truth as FrameTruth with the counting rule applied."""
     counted = (scene_truth.visibility >= m.min_visibility) & (scene_truth.labels > 0) & (scene_truth.snr >= m.min_snr)
-    return FrameTruth(scene_truth.centres, scene_truth.radii, counted, scene_truth.labels.astype(np.int64))
+    return FrameTruth(scene_truth.centres, scene_truth.radii, counted, scene_truth.labels.astype(np.int64),
+                      scene_truth.ids.astype(np.int64))
 
 
 def evaluate_scenario(preset: str, size: tuple[int, int], frames: int, seed: int,
@@ -147,3 +156,42 @@ def evaluate_pairs(pairs: list[tuple[Path, Path]], detector: Detector, m: Matchi
         found = detector.detect(degraded)
         scores.append(_score(index, truth, found.centres, found.radii, m, (particle, small)))
     return scores
+
+
+def evaluate_tracking(frames_iter, detector: Detector, m: Matching, *, fps: float) -> dict[str, Any]:
+    """Run ``detector`` and a :class:`~antiscatter.tracking.Tracker` over (index, image, truth) frames.
+
+    Returns {"tracking": MOTA, IDF1, switches..., "prediction": error at +1, +2, +3 frames}.
+    """
+    from ..assignment import gates as _gates, match as _match
+    from ..tracking import Tracker
+    from .tracking import PredictionError, TrackingScore
+
+    detector.reset()
+    tracker = Tracker()
+    score = TrackingScore(min_gate=m.min_gate, gate_scale=m.gate_scale)
+    prediction = PredictionError()
+    dt = 1.0 / fps
+    for index, image, truth in frames_iter:
+        found = detector.detect(image)
+        tracks = tracker.update(found, index * dt)
+        score.add(truth.ids, truth.centres, truth.radii, truth.counted, found.centres, tracks.detection_ids)
+        # predictions of confirmed tracks, attributed to the particle their detection matched
+        pairs, _, _ = _match(truth.centres, _gates(truth.radii, min_gate=m.min_gate, scale=m.gate_scale),
+                             found.centres)
+        row = {int(i): n for n, i in enumerate(tracks.ids.tolist())}
+        predictions = {}
+        for t, d in pairs.tolist():
+            n = row.get(int(tracks.detection_ids[d]))
+            if n is None or not tracks.confirmed[n] or not truth.counted[t]:
+                continue
+            predictions[int(truth.ids[t])] = [(k, tracks.centres[n] + tracks.velocities[n] * k * dt)
+                                              for k in prediction.horizons]
+        prediction.add(index, truth.ids, truth.centres, predictions)
+    return {"tracking": score.summary(), "prediction": prediction.summary()}
+
+
+def scenario_truth_frames(preset: str, size: tuple[int, int], frames: int, seed: int, m: Matching):
+    """(index, image, FrameTruth) of a scenario, for :func:`evaluate_tracking`."""
+    for index, image, _labels, scene_truth in scenario_frames(preset, size, frames, seed):
+        yield index, image, truth_of(scene_truth, m)

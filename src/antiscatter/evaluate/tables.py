@@ -16,12 +16,13 @@ __all__ = ["FrameTruth", "read_truth", "read_detections"]
 
 @dataclass(frozen=True)
 class FrameTruth:
-    """Truth of one frame: centres (N, 2), radii (N,), counted (N,) bool, labels (N,) int."""
+    """Truth of one frame: centres (N, 2), radii (N,), counted (N,) bool, labels (N,) int, ids (N,) int."""
 
     centres: np.ndarray
     radii: np.ndarray
     counted: np.ndarray
     labels: np.ndarray
+    ids: np.ndarray | None = None
 
 
 def _rows(path: Path, required: tuple[str, ...]):
@@ -81,23 +82,26 @@ def read_truth(path: str | Path, *, min_visibility: float = 0.5, min_snr: float 
             vis = float(row[index["Visibility"]]) if "Visibility" in index else 1.0
             label = int(row[index["Label"]]) if "Label" in index else 1
             snr = float(row[index["SNR"]]) if "SNR" in index else math.inf
+            ident = int(row[index["Bubble ID"]]) if "Bubble ID" in index else -1
         except IndexError:
             raise UsageError(f"{path} row {line}: has {len(row)} fields, the header has {len(index)}") from None
         except ValueError:
             raise UsageError(f"{path} row {line}: Visibility, Label or SNR is not a number") from None
         frames.setdefault(frame, []).append((x, y, r, vis >= min_visibility and label > 0 and snr >= min_snr,
-                                             label))
+                                             label, ident))
     out = {}
     for frame, items in frames.items():
-        arr = np.array([(x, y, r) for x, y, r, _, _ in items], dtype=np.float64).reshape(-1, 3)
-        out[frame] = FrameTruth(arr[:, :2], arr[:, 2], np.array([c for *_, c, _ in items], bool),
-                                np.array([lab for *_, lab in items], np.int64))
+        arr = np.array([item[:3] for item in items], dtype=np.float64).reshape(-1, 3)
+        out[frame] = FrameTruth(arr[:, :2], arr[:, 2], np.array([item[3] for item in items], bool),
+                                np.array([item[4] for item in items], np.int64),
+                                np.array([item[5] for item in items], np.int64))
     return out
 
 
 def read_detections(path: str | Path, *, frames: range | None = None,
-                    frames_source: str = "") -> dict[int, tuple[np.ndarray, np.ndarray]]:
-    """A detections CSV (``frame,x,y,radius``, more columns allowed) -> {frame: (centres, radii)}.
+                    frames_source: str = "") -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """A detections CSV (``frame,x,y,radius``, optional ``track_id``, more columns allowed)
+    -> {frame: (centres, radii, track ids or -1)}.
 
     An empty file (or a header alone) is valid: no detections.  ``frames`` is the
     range of frames the truth covers; a detection outside it is an error naming
@@ -118,10 +122,13 @@ def read_detections(path: str | Path, *, frames: range | None = None,
             x = _number(path, line, "x", row[index["x"]])
             y = _number(path, line, "y", row[index["y"]])
             r = _number(path, line, "radius", row[index["radius"]], non_negative=True)
+            track = (int(_number(path, line, "track_id", row[index["track_id"]], integer=True))
+                     if "track_id" in index else -1)
         except IndexError:
             raise UsageError(f"{path} row {line}: has {len(row)} fields, the header has {len(index)}") from None
         if frames is not None and frame not in frames:
             raise UsageError(f"{path} row {line}: frame {frame} is not in {frames_source or 'the truth'} "
                              f"(frames {frames.start}..{frames.stop - 1})")
-        found.setdefault(frame, []).append((x, y, r))
-    return {f: (np.array(v)[:, :2], np.array(v)[:, 2]) for f, v in found.items()}
+        found.setdefault(frame, []).append((x, y, r, track))
+    return {f: (np.array(v)[:, :2], np.array(v)[:, 2], np.array(v)[:, 3].astype(np.int64))
+            for f, v in found.items()}
