@@ -171,10 +171,11 @@ def test_source_failing_mid_run_keeps_files_valid(tmp_path):
         assert sum(1 for _ in container.decode(video=0)) == 3
 
 
+@pytest.mark.parametrize("mode", ["single", "threads"])
 @pytest.mark.parametrize("signum, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
-def test_signal_stops_cleanly_with_complete_files(tmp_path, signum, code):
+def test_signal_stops_cleanly_with_complete_files(tmp_path, signum, code, mode):
     proc = subprocess.Popen([sys.executable, "-m", "antiscatter", "run", "--output", "files:p.mkv",
-                             "--metrics", "m.csv", "--detections", "d.csv", "--fps", "100"],
+                             "--metrics", "m.csv", "--detections", "d.csv", "--fps", "100", "--mode", mode],
                             cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 60
     metrics = tmp_path / "m.csv"
@@ -183,7 +184,10 @@ def test_signal_stops_cleanly_with_complete_files(tmp_path, signum, code):
             break
         time.sleep(0.05)
     proc.send_signal(signum)
+    sent = time.monotonic()
     out, err = proc.communicate(timeout=30)
+    assert time.monotonic() - sent < 3  # stops within a frame or two, files closed
+    assert not [line for line in out.splitlines() if "Traceback" in line]
     assert proc.returncode == code, err
     assert f"stopped by {signal.Signals(signum).name}" in out
     rows = list(csv.reader(metrics.open()))

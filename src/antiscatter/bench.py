@@ -22,7 +22,7 @@ from .detection import DETECTORS, make_detector
 from .runtime import time_stages
 from .simulate import make_scene
 
-__all__ = ["BenchResult", "bench", "format_bench", "machine_description"]
+__all__ = ["BenchResult", "bench", "format_bench", "machine_description", "bench_modes", "format_modes"]
 
 DEFAULT_SIZES = ((800, 600, "mixed"), (1456, 1088, "fullres"))
 
@@ -129,6 +129,46 @@ def bench(*, detectors: list[str] | None = None, frames: int = 200, threads: int
     finally:
         cv2.setNumThreads(previous)
     return BenchResult(machine_description(), threads, frames, results)
+
+
+def bench_modes(*, frames: int = 300, sizes: tuple[tuple[int, int, str], ...] = DEFAULT_SIZES,
+                detector: str = "contrast", fps: float = 0.0) -> list[dict[str, Any]]:
+    """The same simulator source through every execution mode of ``run``, one after the other.
+
+    Returns per size and mode: frames per second, end-to-end latency (capture
+    to pattern handed to the output) p50/p99/max in ms, and dropped frames.
+    """
+    import io
+
+    from .config import load_config
+    from .runtime import MODES, run
+
+    results = []
+    for width, height, preset in sizes:
+        for mode in MODES:
+            config = load_config(overrides={
+                "source": {"spec": "sim", "preset": preset, "size": f"{width}x{height}"},
+                "detector": {"name": detector}, "output": {"outputs": ("none",)},
+                "run": {"frames": frames, "mode": mode, "fps": fps}})
+            summary = run(config, log=io.StringIO(), out=io.StringIO())
+            latency = np.asarray(summary.latencies_ns, dtype=np.float64) / 1e6
+            pacing = summary.pacing()
+            results.append({"size": f"{width}x{height}", "mode": mode, "frames": summary.frames,
+                            "fps": summary.frames / summary.wall_s if summary.wall_s else 0.0,
+                            "latency_p50_ms": float(np.median(latency)),
+                            "latency_p99_ms": float(np.percentile(latency, 99)),
+                            "latency_max_ms": float(latency.max()), "dropped": summary.dropped,
+                            **({"jitter_p99_ms": pacing["jitter_p99_ms"], "rate": pacing["rate"]} if fps else {})})
+    return results
+
+
+def format_modes(results: list[dict[str, Any]]) -> str:
+    lines = [f"machine: {machine_description()}",
+             f"{'size':<11}{'mode':<9}{'frames/s':>10}{'latency p50':>13}{'p99':>9}{'max':>9}{'dropped':>9}  (ms)"]
+    for r in results:
+        lines.append(f"{r['size']:<11}{r['mode']:<9}{r['fps']:>10.1f}{r['latency_p50_ms']:>13.2f}"
+                     f"{r['latency_p99_ms']:>9.2f}{r['latency_max_ms']:>9.2f}{r['dropped']:>9}")
+    return "\n".join(lines)
 
 
 def format_bench(result: BenchResult) -> str:

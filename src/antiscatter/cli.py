@@ -84,6 +84,12 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--frames", type=int, help="stop after N frames (default 0 = no limit)")
     g.add_argument("--fps", type=float, help="pace the loop at F frames per second (default 0 = as fast as possible)")
     g.add_argument("--nice", type=int, help="process niceness, -20 (highest priority) .. 19")
+    g.add_argument("--mode", choices=("single", "threads"), help="single (default; fastest in bench --modes on the simulator): one thread; threads: capture, processing and "
+                   "output overlap in three threads with latest-frame hand-over")
+    g.add_argument("--rt-priority", type=int, metavar="N", help="real-time SCHED_FIFO priority 1..99 "
+                   "(a warning without permission)")
+    g.add_argument("--cpus", metavar="2,3", help="CPU affinity")
+    g.add_argument("--mlock", action="store_true", default=None, help="lock memory (mlockall)")
     g.add_argument("--metrics", metavar="CSV", help="per-frame stage timings, the report's columns first")
     g.add_argument("--detections", metavar="CSV", help="one row per particle: frame,x,y,radius")
     sim = commands.add_parser(
@@ -172,6 +178,8 @@ def build_parser() -> argparse.ArgumentParser:
     be.add_argument("--detectors", help="comma-separated names (default: all)")
     be.add_argument("--sizes", default="800x600,1456x1088", help="frame sizes (default 800x600,1456x1088)")
     be.add_argument("--threads", type=int, default=1, help="OpenCV threads (default 1, as one Pi core)")
+    be.add_argument("--modes", action="store_true", help="instead: the simulator through every execution "
+                    "mode of run (single, threads): throughput, end-to-end latency p50/p99/max, drops")
     be.add_argument("--json", action="store_true", help="print the results as JSON")
     be.add_argument("--plot", metavar="FILE.png", help="per-stage box plot")
     return parser
@@ -331,6 +339,13 @@ def _bench(args: argparse.Namespace) -> int:
         except ValueError as exc:
             raise UsageError(str(exc)) from None
         sizes.append((w, h, "fullres" if w * h > 800 * 600 else "mixed"))
+    if args.modes:
+        from .bench import bench_modes, format_modes
+
+        modes = bench_modes(frames=args.frames, sizes=tuple(sizes), detector=names[0] if args.detectors else "contrast")
+        print(json.dumps({"machine": __import__("antiscatter.bench", fromlist=["x"]).machine_description(),
+                          "modes": modes}, indent=2) if args.json else format_modes(modes))
+        return 0
     result = bench(detectors=names, frames=args.frames, threads=args.threads, sizes=tuple(sizes))
     if args.plot:
         plot_bench(result, args.plot)
@@ -397,7 +412,8 @@ def _run_config(args: argparse.Namespace):
         "track": {"enabled": args.track, "predict": args.predict, "latency_ms": args.latency_ms},
         "output": {"outputs": tuple(args.output) if args.output else None},
         "run": {"frames": args.frames, "fps": args.fps, "nice": args.nice,
-                "metrics": args.metrics, "detections": args.detections},
+                "metrics": args.metrics, "detections": args.detections, "mode": args.mode,
+                "rt_priority": args.rt_priority, "cpus": args.cpus, "mlock": args.mlock},
     }
     if args.projector_size:
         try:

@@ -163,6 +163,11 @@ class RunConfig:
     nice: process niceness to ask for (-20 highest .. 19), None = leave it.
     metrics: path of the per-frame metrics CSV, empty for none.
     detections: path of the detections CSV (frame,x,y,radius), empty for none.
+    mode: ``single`` (one thread; default: it wins `bench --modes` on the simulator) or ``threads``
+        (capture, processing and output overlap in three threads).
+    rt_priority: SCHED_FIFO priority 1..99, None = leave it.
+    cpus: CPU numbers to run on, e.g. "2,3"; empty = all.
+    mlock: lock the process's memory (no page faults in the loop).
     """
 
     frames: int = 0
@@ -170,8 +175,23 @@ class RunConfig:
     nice: int | None = None
     metrics: str = ""
     detections: str = ""
+    mode: str = "single"
+    rt_priority: int | None = None
+    cpus: str = ""
+    mlock: bool = False
 
     def __post_init__(self) -> None:
+        if self.mode not in ("single", "threads"):
+            raise ValueError(f"mode: got {self.mode!r}, allowed single, threads")
+        if self.rt_priority is not None and not 1 <= self.rt_priority <= 99:
+            raise ValueError(f"rt_priority: got {self.rt_priority}, allowed 1..99")
+        if self.cpus:
+            try:
+                cpus = [int(c) for c in self.cpus.split(",")]
+            except ValueError:
+                cpus = [-1]
+            if not cpus or min(cpus) < 0:
+                raise ValueError(f"cpus: got {self.cpus!r}, allowed CPU numbers separated by commas, e.g. 2,3")
         if self.frames < 0:
             raise ValueError(f"frames: got {self.frames}, allowed >= 0 (0 = no limit)")
         if not math.isfinite(self.fps) or self.fps < 0:

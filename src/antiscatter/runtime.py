@@ -11,11 +11,12 @@ import csv
 import os
 import signal
 import sys
+import threading
 import time
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, TextIO
+from typing import Any, Callable, TextIO
 
 import numpy as np
 
@@ -28,7 +29,11 @@ from .pattern import render_pattern, scale_mapping
 from .sources import FrameSource, open_source, parse_crop
 from .stats import RunningStats
 
-__all__ = ["REPORT_COLUMNS", "metrics_columns", "time_stages", "Pacer", "RunSummary", "run", "set_niceness"]
+__all__ = ["REPORT_COLUMNS", "metrics_columns", "time_stages", "Pacer", "RunSummary", "run", "set_niceness",
+           "LatestSlot", "apply_process_controls", "MODES"]
+
+#: Execution modes of ``antiscatter run``.
+MODES = ("single", "threads")
 
 #: The report's metrics CSV columns, in its order (SPEC section 3).
 REPORT_COLUMNS = (
@@ -51,6 +56,7 @@ EXTRA_COLUMNS = (
     "Pattern Rendering Duration (s)",
     "Output Duration (s)",
     "End-to-end Latency (s)",
+    "Dropped Frames",
 )
 
 
@@ -107,6 +113,44 @@ class Pacer:
         self._next += self.period_ns
 
 
+def apply_process_controls(rc: Any) -> list[str]:
+    """Niceness, real-time priority, CPU affinity, memory locking: each reports whether it took effect."""
+    notes = []
+    if rc.nice is not None:
+        notes.append(set_niceness(rc.nice) or f"niceness set to {rc.nice}")
+    if rc.rt_priority is not None:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(rc.rt_priority))
+            notes.append(f"real-time priority SCHED_FIFO {rc.rt_priority} set")
+        except (PermissionError, OSError) as exc:
+            notes.append(f"warning: --rt-priority {rc.rt_priority} not applied ({exc.strerror or exc}); "
+                         "needs root or CAP_SYS_NICE")
+    if rc.cpus:
+        cpus = {int(c) for c in rc.cpus.split(",")}
+        try:
+            os.sched_setaffinity(0, cpus)
+            notes.append(f"running on CPUs {sorted(os.sched_getaffinity(0))}")
+        except OSError as exc:
+            notes.append(f"warning: --cpus {rc.cpus} not applied ({exc.strerror or exc})")
+    if rc.mlock:
+        notes.append(lock_memory())
+    return notes
+
+
+def lock_memory() -> str:
+    """mlockall(MCL_CURRENT | MCL_FUTURE): no page faults to swap in the real-time loop."""
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        if libc.mlockall(1 | 2) != 0:
+            return f"warning: --mlock not applied ({os.strerror(ctypes.get_errno())}); raise ulimit -l or run as root"
+    except (OSError, AttributeError) as exc:
+        return f"warning: --mlock not applied ({exc})"
+    return "memory locked (mlockall)"
+
+
 def set_niceness(nice: int) -> str | None:
     """Ask for process niceness ``nice``; a warning text when not permitted, else None."""
     try:
@@ -126,6 +170,22 @@ class RunSummary:
     particles: RunningStats = field(default_factory=RunningStats)
     durations: dict[str, RunningStats] = field(default_factory=dict)
     wall_s: float = 0.0
+    dropped: int = 0
+    period_ns: int = 0
+    output_times: list[int] = field(default_factory=list)
+    latencies_ns: list[int] = field(default_factory=list)
+
+    def pacing(self) -> dict[str, float]:
+        """Achieved output rate and frame-interval error (against the --fps period, or the mean interval)."""
+        if len(self.output_times) < 3:
+            return {}
+        times = np.asarray(self.output_times, dtype=np.float64)
+        intervals = np.diff(times)
+        period = self.period_ns or float(np.mean(intervals))
+        error = np.abs(intervals - period) / 1e6
+        return {"rate": (len(times) - 1) / ((times[-1] - times[0]) / 1e9),
+                "jitter_p50_ms": float(np.median(error)), "jitter_p99_ms": float(np.percentile(error, 99)),
+                "jitter_max_ms": float(error.max())}
 
     def table(self) -> str:
         """The report's table 1 layout: stage, mean and standard deviation in microseconds."""
@@ -190,19 +250,139 @@ def _open_source(config: Config) -> FrameSource:
                        size=size, fps=sc.camera_fps)
 
 
+@dataclass
+class _Record:
+    """One frame on its way through the pipeline."""
+
+    frame: Any
+    t0: int
+    t1: int
+    detections: Detections
+    stage_ns: list[int]
+    track_ns: int
+    track_ids: np.ndarray | None
+    pattern: np.ndarray
+    t_processed: int
+    t_pattern: int
+
+
+class _Pipeline:
+    """Per-run state shared by the execution modes: process a frame, emit a result."""
+
+    def __init__(self, config: Config, detector: Detector, tracker: Any, source: FrameSource,
+                 outputs: list[LightOutput], metrics_writer: Any, detections_writer: Any,
+                 columns: list[str], summary: RunSummary, buffers: int) -> None:
+        self.config = config
+        self.detector = detector
+        self.tracker = tracker
+        self.outputs = outputs
+        self.metrics_writer = metrics_writer
+        self.detections_writer = detections_writer
+        self.summary = summary
+        self.projector_size = (config.pattern.width, config.pattern.height)
+        mapping = config.pattern.matrix()
+        self.mapping = scale_mapping(source.size, self.projector_size) if mapping is None else mapping
+        width, height = self.projector_size
+        self.buffers = [np.empty((height, width), np.uint8) for _ in range(buffers)]
+        self.next_buffer = 0
+        self.latency_estimate = 0.0  # seconds, running mean of the measured capture-to-light time
+        self.columns = columns
+        self.index_of = {c: i for i, c in enumerate(columns)}
+        self.stage_columns = [f"{st.label} Duration (s)" for st in detector.stages]
+        self.row = [0.0] * len(columns)
+        self.clock = time.perf_counter_ns
+
+    def process(self, frame: Any, t0: int, t1: int) -> _Record:
+        clock = self.clock
+        tc = self.config.track
+        detections, stage_ns = time_stages(self.detector, frame.image, clock=clock)
+        t_processed = t1 + sum(stage_ns)
+        holes, track_ns, track_ids = detections, 0, None
+        if self.tracker is not None:
+            t_track = clock()
+            captured = frame.timestamp_ns / 1e9
+            tracks = self.tracker.update(detections, captured)
+            track_ids = tracks.detection_ids
+            if tc.predict:
+                latency = tc.latency_ms / 1e3 if tc.latency_ms >= 0 else self.latency_estimate
+                holes = self.tracker.holes(captured + latency)
+            else:
+                holes = self.tracker.holes(captured)
+            track_ns = clock() - t_track
+            t_processed = clock()
+        buffer = self.buffers[self.next_buffer]
+        self.next_buffer = (self.next_buffer + 1) % len(self.buffers)
+        pattern = render_pattern(holes, size=self.projector_size, mapping=self.mapping,
+                                 margin=self.config.pattern.margin, out=buffer)
+        return _Record(frame, t0, t1, detections, stage_ns, track_ns, track_ids, pattern, t_processed, clock())
+
+    def emit(self, rec: _Record, dropped: int) -> bool:
+        """Show the pattern, log the frame; True when an output asked to stop."""
+        clock = self.clock
+        t_show = clock()
+        for output in self.outputs:
+            output.show(rec.pattern, rec.frame, rec.detections)
+        t_out = clock()
+        shown_ns = time.monotonic_ns()
+        latency_ns = shown_ns - rec.frame.timestamp_ns
+        summary = self.summary
+        summary.output_times.append(shown_ns)
+        summary.latencies_ns.append(latency_ns)
+        summary.dropped += dropped
+        self.latency_estimate += (latency_ns / 1e9 - self.latency_estimate) * (0.1 if summary.frames else 1.0)
+        values = {"Capture Duration (s)": (rec.t1 - rec.t0) / 1e9,
+                  "Total frame processing time (s)": (rec.t1 - rec.t0 + sum(rec.stage_ns)) / 1e9,
+                  "Pattern Rendering Duration (s)": (rec.t_pattern - rec.t_processed) / 1e9,
+                  "Output Duration (s)": (t_out - t_show) / 1e9,
+                  "End-to-end Latency (s)": latency_ns / 1e9}
+        if self.tracker is not None:
+            values["Tracking Duration (s)"] = rec.track_ns / 1e9
+        for column, ns in zip(self.stage_columns, rec.stage_ns):
+            values[column] = ns / 1e9
+        for column, v in values.items():
+            summary.durations[column].add(v)
+        summary.particles.add(len(rec.detections))
+        summary.frames += 1
+        frame, detections = rec.frame, rec.detections
+        if self.metrics_writer is not None:
+            row, index_of = self.row, self.index_of
+            for i in range(len(row)):
+                row[i] = 0.0
+            for column, v in values.items():
+                row[index_of[column]] = f"{v:.9f}"
+            row[index_of["Number of MECs on screen"]] = len(detections)
+            row[index_of["Frame"]] = frame.index
+            row[index_of["Capture Timestamp (ns)"]] = frame.timestamp_ns
+            row[index_of["Dropped Frames"]] = dropped
+            self.metrics_writer.writerow(row)
+        if self.detections_writer is not None and len(detections):
+            if rec.track_ids is None:
+                self.detections_writer.writerows(
+                    (frame.index, f"{x:.3f}", f"{y:.3f}", f"{r:.3f}")
+                    for (x, y), r in zip(detections.centres.tolist(), detections.radii.tolist()))
+            else:
+                self.detections_writer.writerows(
+                    (frame.index, f"{x:.3f}", f"{y:.3f}", f"{r:.3f}", i)
+                    for (x, y), r, i in zip(detections.centres.tolist(), detections.radii.tolist(),
+                                            rec.track_ids.tolist()))
+        return any(o.exit_requested for o in self.outputs)
+
+
 def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None) -> RunSummary:
     """Run the cancellation loop until the frame limit, the source's end, ``e`` or a signal.
 
-    Every file is complete and valid however the run ends. Returns the summary
-    (also printed to ``out``); bad input raises UsageError.
+    ``config.run.mode`` picks the execution: ``single`` (one thread, the
+    report's design) or ``threads`` (capture, processing and output overlap in
+    three threads joined by latest-frame slots).  Every file is complete and
+    valid however the run ends.  Returns the summary (also printed to ``out``);
+    bad input raises UsageError.
     """
     log = log or sys.stderr
     out = out or sys.stdout
     detector = make_detector(config.detector.name, config.detector_params)
     rc = config.run
-    if rc.nice is not None:
-        warning = set_niceness(rc.nice)
-        print(warning or f"niceness set to {rc.nice}", file=log)
+    for note in apply_process_controls(rc):
+        print(note, file=log)
 
     columns = metrics_columns(detector)
     stage_columns = [f"{s.label} Duration (s)" for s in detector.stages]
@@ -218,18 +398,13 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None)
     if tracker is None:
         timed.remove("Tracking Duration (s)")
     summary.durations = {c: RunningStats() for c in timed}
-    index_of = {c: i for i, c in enumerate(columns)}
+    summary.period_ns = int(round(1e9 / rc.fps)) if rc.fps else 0
 
     with ExitStack() as stack:
         source = stack.enter_context(_open_source(config))
-        projector_size = (config.pattern.width, config.pattern.height)
-        mapping = config.pattern.matrix()
-        if mapping is None:
-            mapping = scale_mapping(source.size, projector_size)
         outputs: list[LightOutput] = []
         for spec in config.output.outputs:
-            output = stack.enter_context(open_output(spec, fps=rc.fps or source.fps or 60.0))
-            outputs.append(output)
+            outputs.append(stack.enter_context(open_output(spec, fps=rc.fps or source.fps or 60.0)))
         names = ", ".join(o.name for o in outputs)
         metrics_writer = detections_writer = None
         if rc.metrics:
@@ -243,104 +418,193 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None)
                     ", tracking" + (" with prediction" if tc.predict else "")
                     + (f" over {tc.latency_ms:g} ms" if tc.predict and tc.latency_ms >= 0 else ""))
         print(f"antiscatter run: source {config.source.spec} ({source.size[0]}x{source.size[1]}), "
-              f"detector {detector.name}{tracking}, pattern {projector_size[0]}x{projector_size[1]}, "
-              f"output {names}", file=log)
-        latency_estimate = 0.0  # seconds, running mean of the measured capture-to-light time
-
-        pattern_buffer = np.empty((projector_size[1], projector_size[0]), np.uint8)
-        pacer = Pacer(rc.fps)
+              f"detector {detector.name}{tracking}, pattern {config.pattern.width}x{config.pattern.height}, "
+              f"output {names}, mode {rc.mode}", file=log)
+        pipeline = _Pipeline(config, detector, tracker, source, outputs, metrics_writer, detections_writer,
+                             columns, summary, buffers=1 if rc.mode == "single" else 3)
         stop = stack.enter_context(_StopFlag())
-        clock = time.perf_counter_ns
-        started = clock()
-        row = [0.0] * len(columns)
-        stage_index = [index_of[c] for c in stage_columns]
-        while True:
-            if stop:
-                summary.stop_reason = f"stopped by {stop.reason}"
-                break
-            if rc.frames and summary.frames >= rc.frames:
-                summary.stop_reason = f"frame limit {rc.frames}"
-                break
-            pacer.wait()
+        started = time.perf_counter_ns()
+        if rc.mode == "threads":
+            _run_threads(pipeline, source, stop, rc)
+        else:
+            _run_single(pipeline, source, stop, rc)
+        summary.wall_s = (time.perf_counter_ns() - started) / 1e9
+    _print_summary(summary, out)
+    return summary
+
+
+def _run_single(pipeline: _Pipeline, source: FrameSource, stop: "_StopFlag", rc: Any) -> None:
+    """One thread: pace, capture, process, show -- the report's design."""
+    summary = pipeline.summary
+    pacer = Pacer(rc.fps)
+    clock = time.perf_counter_ns
+    while True:
+        if stop:
+            summary.stop_reason = f"stopped by {stop.reason}"
+            return
+        if rc.frames and summary.frames >= rc.frames:
+            summary.stop_reason = f"frame limit {rc.frames}"
+            return
+        pacer.wait()
+        t0 = clock()
+        frame = source.read()
+        t1 = clock()
+        if frame is None:
+            summary.stop_reason = "source ended"
+            return
+        if pipeline.emit(pipeline.process(frame, t0, t1), 0):
+            summary.stop_reason = "stopped from the window (e)"
+            return
+
+
+def _run_threads(pipeline: _Pipeline, source: FrameSource, stop: "_StopFlag", rc: Any) -> None:
+    """Capture, process and output in their own threads, joined by latest-frame slots.
+
+    OpenCV and numpy release the GIL, so the stages overlap without copying
+    frames between processes.  A stage that falls behind takes the newest item
+    and the skipped ones are counted as dropped; nothing queues up.  The output
+    thread paces at ``--fps`` (drift-free).  A crash in any thread stops the
+    run and is raised here; Ctrl-C stops all three within a frame.
+    """
+    summary = pipeline.summary
+    # a live source (camera) must never wait: stages take the newest frame; a
+    # file or the simulator is replayed whole: hand-over waits instead of dropping
+    lossless = not getattr(source, "live", False)
+    captured, processed = LatestSlot(lossless=lossless), LatestSlot(lossless=lossless)
+    errors: list[BaseException] = []
+    finished = threading.Event()
+    clock = time.perf_counter_ns
+
+    def guarded(body: Callable[[], None]) -> Callable[[], None]:
+        def target() -> None:
+            try:
+                body()
+            except BaseException as exc:  # noqa: BLE001 - handed to the main thread
+                errors.append(exc)
+                if body is not capture_loop:
+                    finished.set()  # a failed stage stops everything at once
+                # a failed source: the frames already captured still go out
+            finally:
+                captured.close()
+                if body is not capture_loop:
+                    processed.close()
+        return target
+
+    def capture_loop() -> None:
+        while not finished.is_set() and not stop:
             t0 = clock()
             frame = source.read()
             t1 = clock()
             if frame is None:
-                summary.stop_reason = "source ended"
-                break
-            detections, stage_ns = time_stages(detector, frame.image, clock=clock)
-            t_prev = t1 + sum(stage_ns)
-            holes, track_ns, track_ids = detections, 0, None
-            if tracker is not None:
-                t_track = clock()
-                captured = frame.timestamp_ns / 1e9
-                tracks = tracker.update(detections, captured)
-                track_ids = tracks.detection_ids
-                if tc.predict:
-                    latency = tc.latency_ms / 1e3 if tc.latency_ms >= 0 else latency_estimate
-                    holes = tracker.holes(captured + latency)
-                else:
-                    holes = tracker.holes(captured)
-                track_ns = clock() - t_track
-                t_prev = clock()
-            pattern = render_pattern(holes, size=projector_size, mapping=mapping,
-                                     margin=config.pattern.margin, out=pattern_buffer)
-            t_pattern = clock()
-            for output in outputs:
-                output.show(pattern, frame, detections)
-            t_out = clock()
-            latency_ns = time.monotonic_ns() - frame.timestamp_ns
-            # what the next frame's prediction should cover (a slow running mean)
-            latency_estimate += (latency_ns / 1e9 - latency_estimate) * (0.1 if summary.frames else 1.0)
+                summary.stop_reason = summary.stop_reason or "source ended"
+                return
+            captured.put((frame, t0, t1))
 
-            capture_s = (t1 - t0) / 1e9
-            total_s = (t_prev - t0) / 1e9
-            values = {"Capture Duration (s)": capture_s, "Total frame processing time (s)": total_s,
-                      "Pattern Rendering Duration (s)": (t_pattern - t_prev) / 1e9,
-                      **({"Tracking Duration (s)": track_ns / 1e9} if tracker is not None else {}),
-                      "Output Duration (s)": (t_out - t_pattern) / 1e9,
-                      "End-to-end Latency (s)": latency_ns / 1e9}
-            for column, ns in zip(stage_columns, stage_ns):
-                values[column] = ns / 1e9
-            for column, v in values.items():
-                summary.durations[column].add(v)
-            summary.particles.add(len(detections))
-            summary.frames += 1
+    def process_loop() -> None:
+        while True:
+            item = captured.get(finished)
+            if item is None:
+                return
+            processed.put(pipeline.process(*item))
 
-            if metrics_writer is not None:
-                for i in range(len(row)):
-                    row[i] = 0.0
-                for column, v in values.items():
-                    row[index_of[column]] = f"{v:.9f}"
-                for i, ns in zip(stage_index, stage_ns):
-                    row[i] = f"{ns / 1e9:.9f}"
-                row[index_of["Number of MECs on screen"]] = len(detections)
-                row[index_of["Frame"]] = frame.index
-                row[index_of["Capture Timestamp (ns)"]] = frame.timestamp_ns
-                metrics_writer.writerow(row)
-            if detections_writer is not None and len(detections):
-                if track_ids is None:
-                    detections_writer.writerows(
-                        (frame.index, f"{x:.3f}", f"{y:.3f}", f"{r:.3f}")
-                        for (x, y), r in zip(detections.centres.tolist(), detections.radii.tolist()))
-                else:
-                    detections_writer.writerows(
-                        (frame.index, f"{x:.3f}", f"{y:.3f}", f"{r:.3f}", i)
-                        for (x, y), r, i in zip(detections.centres.tolist(), detections.radii.tolist(),
-                                                track_ids.tolist()))
-            if any(o.exit_requested for o in outputs):
+    def output_loop() -> None:
+        pacer = Pacer(rc.fps)
+        while True:
+            rec = processed.get(finished)
+            if rec is None:
+                return
+            pacer.wait()
+            dropped = captured.take_dropped() + processed.take_dropped()
+            if pipeline.emit(rec, dropped):
                 summary.stop_reason = "stopped from the window (e)"
-                break
-        summary.wall_s = (clock() - started) / 1e9
-    _print_summary(summary, out)
-    return summary
+                finished.set()
+                return
+            if rc.frames and summary.frames >= rc.frames:
+                summary.stop_reason = f"frame limit {rc.frames}"
+                finished.set()
+                return
+
+    threads = [threading.Thread(target=guarded(loop), name=f"antiscatter-{name}", daemon=True)
+               for name, loop in (("capture", capture_loop), ("process", process_loop), ("output", output_loop))]
+    for thread in threads:
+        thread.start()
+    try:
+        while any(t.is_alive() for t in threads):
+            if stop and not finished.is_set():
+                summary.stop_reason = f"stopped by {stop.reason}"
+                finished.set()
+            for t in threads:
+                t.join(timeout=0.05)
+    finally:
+        finished.set()
+        captured.close()
+        processed.close()
+        for t in threads:
+            t.join(timeout=5)
+    if errors:
+        raise errors[0]
+    if stop and not summary.stop_reason.startswith("stopped"):
+        summary.stop_reason = f"stopped by {stop.reason}"
+
+
+class LatestSlot:
+    """A one-item hand-over with latest-frame semantics.
+
+    ``put`` replaces an item not yet taken (counted in ``dropped``); with
+    ``lossless=True`` it waits for the item to be taken instead.  ``get`` waits
+    for a new item and returns None once the slot is closed and empty or
+    ``cancel`` (an Event) is set.  Queues never grow.
+    """
+
+    def __init__(self, *, lossless: bool = False) -> None:
+        self._item: Any = None
+        self._full = False
+        self._closed = False
+        self._dropped = 0
+        self.lossless = lossless
+        self._cond = threading.Condition()
+
+    def put(self, item: Any, *, poll: float = 0.05) -> None:
+        with self._cond:
+            if self.lossless:
+                while self._full and not self._closed:
+                    self._cond.wait(poll)
+            elif self._full:
+                self._dropped += 1
+            self._item, self._full = item, True
+            self._cond.notify_all()
+
+    def get(self, cancel: threading.Event | None = None, *, poll: float = 0.05) -> Any:
+        with self._cond:
+            while not self._full:
+                if self._closed or (cancel is not None and cancel.is_set()):
+                    return None
+                self._cond.wait(poll)
+            item, self._item, self._full = self._item, None, False
+            self._cond.notify_all()
+            return item
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+    def take_dropped(self) -> int:
+        """Items replaced before being taken, since the last call."""
+        with self._cond:
+            dropped, self._dropped = self._dropped, 0
+            return dropped
 
 
 def _print_summary(summary: RunSummary, out: TextIO) -> None:
     p = summary.particles
     fps = summary.frames / summary.wall_s if summary.wall_s > 0 else 0.0
-    print(f"frames: {summary.frames} ({summary.stop_reason})", file=out)
+    print(f"frames: {summary.frames} ({summary.stop_reason}), dropped {summary.dropped}", file=out)
     if p.count:
         print(f"particles per frame: mean {p.mean:.1f}, min {p.min:.0f}, max {p.max:.0f}", file=out)
     print(summary.table(), file=out)
     print(f"frames per second: {fps:.1f} over {summary.wall_s:.2f} s", file=out)
+    pacing = summary.pacing()
+    if pacing:
+        print(f"output rate {pacing['rate']:.2f} frames/s; interval error p50 {pacing['jitter_p50_ms']:.3f} ms, "
+              f"p99 {pacing['jitter_p99_ms']:.3f} ms, max {pacing['jitter_max_ms']:.3f} ms", file=out)

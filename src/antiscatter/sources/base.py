@@ -51,6 +51,7 @@ class FrameSource:
     name: str = "source"
     size: tuple[int, int] = (0, 0)  # (width, height) of delivered frames
     fps: float = 0.0  # nominal rate, 0 when unknown
+    live: bool = False  # frames come whether or not they are taken (a camera): may be dropped
 
     def read(self) -> Frame | None:
         raise NotImplementedError

@@ -39,6 +39,7 @@ class CameraSource(FrameSource):
     """
 
     name = "camera"
+    live = True
 
     def __init__(self, *, size: tuple[int, int] = (728, 544), fps: float = 60.0,
                  picamera2: Callable[[], Any] | None = None) -> None:

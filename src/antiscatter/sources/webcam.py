@@ -14,6 +14,7 @@ class WebcamSource(FrameSource):
     """Frames from capture device ``index`` (``/dev/videoN`` on Linux)."""
 
     name = "webcam"
+    live = True
 
     def __init__(self, index: int, *, size: tuple[int, int] | None = None) -> None:
         self.index = index

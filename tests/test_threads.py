@@ -1,0 +1,135 @@
+"""The threaded runtime: latest-frame hand-over, drops, crash propagation, both modes end to end."""
+
+import csv
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from antiscatter.config import load_config
+from antiscatter.errors import UsageError
+from antiscatter.runtime import LatestSlot, run
+
+
+def test_slow_consumer_sees_the_newest_item_and_drops_are_counted_exactly():
+    slot = LatestSlot()
+    for i in range(5):
+        slot.put(i)
+    assert slot.get() == 4
+    assert slot.take_dropped() == 4
+    assert slot.take_dropped() == 0
+    slot.put(5)
+    assert slot.get() == 5 and slot.take_dropped() == 0
+
+
+def test_lossless_slot_waits_instead_of_dropping():
+    slot = LatestSlot(lossless=True)
+    got = []
+
+    def consumer():
+        while (item := slot.get()) is not None:
+            got.append(item)
+            time.sleep(0.002)
+
+    thread = threading.Thread(target=consumer)
+    thread.start()
+    for i in range(20):
+        slot.put(i)
+    time.sleep(0.05)
+    slot.close()
+    thread.join(2)
+    assert got == list(range(20)) and slot.take_dropped() == 0
+
+
+def test_get_returns_none_when_closed_or_cancelled():
+    slot = LatestSlot()
+    cancel = threading.Event()
+    cancel.set()
+    assert slot.get(cancel) is None
+    slot.close()
+    assert slot.get() is None
+
+
+def _config(tmp_path, mode, **run):
+    return load_config(overrides={"output": {"outputs": ("none",)},
+                                  "run": {"mode": mode, "metrics": str(tmp_path / f"{mode}.csv"), **run}})
+
+
+@pytest.mark.parametrize("mode", ["single", "threads"])
+def test_both_modes_process_every_simulator_frame(tmp_path, mode):
+    import io
+    summary = run(_config(tmp_path, mode, frames=50), log=io.StringIO(), out=io.StringIO())
+    assert summary.frames == 50 and summary.dropped == 0
+    rows = list(csv.DictReader((tmp_path / f"{mode}.csv").open()))
+    assert [int(r["Frame"]) for r in rows] == list(range(50))
+    assert all(int(r["Dropped Frames"]) == 0 for r in rows)
+
+
+class _Exploding:
+    """A source that fails on its fourth frame."""
+
+    name, size, fps, live = "boom", (64, 48), 0.0, False
+
+    def __init__(self):
+        self.n = 0
+
+    def read(self):
+        from antiscatter.sources.base import Frame
+        self.n += 1
+        if self.n == 4:
+            raise UsageError("boom: frame 3 is unreadable")
+        return Frame(np.zeros((48, 64, 3), np.uint8), self.n - 1, time.monotonic_ns())
+
+    def close(self):
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+@pytest.mark.parametrize("mode", ["single", "threads"])
+def test_a_crash_in_any_thread_stops_the_run_with_its_error(tmp_path, monkeypatch, mode):
+    import io
+    from antiscatter import runtime
+    monkeypatch.setattr(runtime, "_open_source", lambda config: _Exploding())
+    started = time.monotonic()
+    with pytest.raises(UsageError, match="frame 3 is unreadable"):
+        run(_config(tmp_path, mode), log=io.StringIO(), out=io.StringIO())
+    assert time.monotonic() - started < 5
+    rows = list(csv.reader((tmp_path / f"{mode}.csv").open()))
+    assert len(rows) == 4  # header + the three good frames, written completely
+
+
+def test_a_crash_in_the_detector_thread_propagates(tmp_path, monkeypatch):
+    import io
+    from antiscatter.detection import seed
+
+    def broken(image):
+        raise RuntimeError("detector exploded")
+
+    monkeypatch.setattr(seed, "to_grey", broken)
+    config = load_config(overrides={"output": {"outputs": ("none",)}, "detector": {"name": "seed"},
+                                    "run": {"mode": "threads", "frames": 10}})
+    with pytest.raises(RuntimeError, match="detector exploded"):
+        run(config, log=io.StringIO(), out=io.StringIO())
+    assert not [t for t in threading.enumerate() if t.name.startswith("antiscatter-")]
+
+
+def test_pacing_reaches_the_asked_rate(tmp_path):
+    import io
+    summary = run(_config(tmp_path, "threads", frames=40, fps=50), log=io.StringIO(), out=io.StringIO())
+    pacing = summary.pacing()
+    assert abs(pacing["rate"] - 50) < 2.5
+
+
+def test_process_controls_report_whether_they_took_effect(tmp_path):
+    import io
+    log = io.StringIO()
+    run(_config(tmp_path, "single", frames=2, cpus="0", mlock=True), log=log, out=io.StringIO())
+    text = log.getvalue()
+    assert "running on CPUs [0]" in text or "warning: --cpus" in text
+    assert "memory locked" in text or "warning: --mlock" in text
