@@ -171,9 +171,10 @@ def test_source_failing_mid_run_keeps_files_valid(tmp_path):
         assert sum(1 for _ in container.decode(video=0)) == 3
 
 
-@pytest.mark.parametrize("mode", ["single", "threads"])
+@pytest.mark.parametrize("mode", ["single", "threads", "processes"])
 @pytest.mark.parametrize("signum, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
 def test_signal_stops_cleanly_with_complete_files(tmp_path, signum, code, mode):
+    shm_before = _shm()
     proc = subprocess.Popen([sys.executable, "-m", "antiscatter", "run", "--output", "files:p.mkv",
                              "--metrics", "m.csv", "--detections", "d.csv", "--fps", "100", "--mode", mode],
                             cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -198,3 +199,25 @@ def test_signal_stops_cleanly_with_complete_files(tmp_path, signum, code, mode):
     assert decoded == frames
     det = (tmp_path / "d.csv").read_text()
     assert det.endswith("\n")
+    assert _children(proc.pid) == []  # no orphaned worker process
+    assert _shm() == shm_before  # no shared-memory segment left behind
+
+
+def _children(pid):
+    """Live processes whose parent is ``pid`` (from /proc)."""
+    import os
+    found = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                stat = open(f"/proc/{entry}/stat").read()
+            except OSError:
+                continue
+            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+                found.append(int(entry))
+    return found
+
+
+def _shm():
+    import os
+    return set(os.listdir("/dev/shm")) if os.path.isdir("/dev/shm") else set()

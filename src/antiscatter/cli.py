@@ -84,8 +84,10 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--frames", type=int, help="stop after N frames (default 0 = no limit)")
     g.add_argument("--fps", type=float, help="pace the loop at F frames per second (default 0 = as fast as possible)")
     g.add_argument("--nice", type=int, help="process niceness, -20 (highest priority) .. 19")
-    g.add_argument("--mode", choices=("single", "threads"), help="single (default; fastest in bench --modes on the simulator): one thread; threads: capture, processing and "
-                   "output overlap in three threads with latest-frame hand-over")
+    g.add_argument("--mode", choices=("single", "threads", "processes", "processes-pickle"), help="single (default; fastest in bench --modes on the simulator): one thread; threads: capture, processing and "
+                   "output overlap in three threads with latest-frame hand-over; processes: detection in a "
+                   "worker process fed through shared memory; processes-pickle: the report's design, frames "
+                   "pickled through a queue (to measure its cost)")
     g.add_argument("--rt-priority", type=int, metavar="N", help="real-time SCHED_FIFO priority 1..99 "
                    "(a warning without permission)")
     g.add_argument("--cpus", metavar="2,3", help="CPU affinity")

@@ -164,7 +164,9 @@ class RunConfig:
     metrics: path of the per-frame metrics CSV, empty for none.
     detections: path of the detections CSV (frame,x,y,radius), empty for none.
     mode: ``single`` (one thread; default: it wins `bench --modes` on the simulator) or ``threads``
-        (capture, processing and output overlap in three threads).
+        (capture, processing and output overlap in three threads) or ``processes`` (detection in a
+        worker process fed through shared memory) or ``processes-pickle`` (the report's design:
+        frames pickled through a queue, for comparison).
     rt_priority: SCHED_FIFO priority 1..99, None = leave it.
     cpus: CPU numbers to run on, e.g. "2,3"; empty = all.
     mlock: lock the process's memory (no page faults in the loop).
@@ -181,8 +183,8 @@ class RunConfig:
     mlock: bool = False
 
     def __post_init__(self) -> None:
-        if self.mode not in ("single", "threads"):
-            raise ValueError(f"mode: got {self.mode!r}, allowed single, threads")
+        if self.mode not in ("single", "threads", "processes", "processes-pickle"):
+            raise ValueError(f"mode: got {self.mode!r}, allowed single, threads, processes, processes-pickle")
         if self.rt_priority is not None and not 1 <= self.rt_priority <= 99:
             raise ValueError(f"rt_priority: got {self.rt_priority}, allowed 1..99")
         if self.cpus:

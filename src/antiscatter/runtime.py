@@ -33,7 +33,7 @@ __all__ = ["REPORT_COLUMNS", "metrics_columns", "time_stages", "Pacer", "RunSumm
            "LatestSlot", "apply_process_controls", "MODES"]
 
 #: Execution modes of ``antiscatter run``.
-MODES = ("single", "threads")
+MODES = ("single", "threads", "processes", "processes-pickle")
 
 #: The report's metrics CSV columns, in its order (SPEC section 3).
 REPORT_COLUMNS = (
@@ -292,10 +292,15 @@ class _Pipeline:
         self.row = [0.0] * len(columns)
         self.clock = time.perf_counter_ns
 
-    def process(self, frame: Any, t0: int, t1: int) -> _Record:
+    def process(self, frame: Any, t0: int, t1: int, found: Detections | None = None,
+                stage_ns: list[int] | None = None) -> _Record:
+        """Detect (unless ``found`` came from a detector process), track, render the pattern."""
         clock = self.clock
         tc = self.config.track
-        detections, stage_ns = time_stages(self.detector, frame.image, clock=clock)
+        if found is None:
+            detections, stage_ns = time_stages(self.detector, frame.image, clock=clock)
+        else:
+            detections = found
         t_processed = t1 + sum(stage_ns)
         holes, track_ns, track_ids = detections, 0, None
         if self.tracker is not None:
@@ -368,14 +373,15 @@ class _Pipeline:
         return any(o.exit_requested for o in self.outputs)
 
 
-def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None) -> RunSummary:
+def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
+        source: FrameSource | None = None) -> RunSummary:
     """Run the cancellation loop until the frame limit, the source's end, ``e`` or a signal.
 
     ``config.run.mode`` picks the execution: ``single`` (one thread, the
     report's design) or ``threads`` (capture, processing and output overlap in
     three threads joined by latest-frame slots).  Every file is complete and
     valid however the run ends.  Returns the summary (also printed to ``out``);
-    bad input raises UsageError.
+    bad input raises UsageError.  ``source`` replaces the configured source (benchmarks, tests).
     """
     log = log or sys.stderr
     out = out or sys.stdout
@@ -401,7 +407,7 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None)
     summary.period_ns = int(round(1e9 / rc.fps)) if rc.fps else 0
 
     with ExitStack() as stack:
-        source = stack.enter_context(_open_source(config))
+        source = stack.enter_context(source if source is not None else _open_source(config))
         outputs: list[LightOutput] = []
         for spec in config.output.outputs:
             outputs.append(stack.enter_context(open_output(spec, fps=rc.fps or source.fps or 60.0)))
@@ -426,6 +432,9 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None)
         started = time.perf_counter_ns()
         if rc.mode == "threads":
             _run_threads(pipeline, source, stop, rc)
+        elif rc.mode.startswith("processes"):
+            _run_processes(pipeline, source, stop, rc, config,
+                           transport="pickle" if rc.mode == "processes-pickle" else "shm")
         else:
             _run_single(pipeline, source, stop, rc)
         summary.wall_s = (time.perf_counter_ns() - started) / 1e9
@@ -545,6 +554,62 @@ def _run_threads(pipeline: _Pipeline, source: FrameSource, stop: "_StopFlag", rc
         raise errors[0]
     if stop and not summary.stop_reason.startswith("stopped"):
         summary.stop_reason = f"stopped by {stop.reason}"
+
+
+def _run_processes(pipeline: _Pipeline, source: FrameSource, stop: "_StopFlag", rc: Any, config: Config,
+                   *, transport: str) -> None:
+    """Detection in a worker process fed through shared memory (or, for comparison, pickled frames)."""
+    from .parallel import DetectorProcess
+
+    summary = pipeline.summary
+    clock = time.perf_counter_ns
+    t0 = clock()
+    first = source.read()
+    t1 = clock()
+    if first is None:
+        summary.stop_reason = "source ended"
+        return
+    worker = DetectorProcess(config.detector.name, config.detector_params, first.image, transport=transport)
+    pending: dict[int, tuple[Any, int, int]] = {}
+    pacer = Pacer(rc.fps)
+    submitted = 0
+    ended = False
+    try:
+        worker.submit(submitted, first.image)
+        pending[submitted] = (first, t0, t1)
+        submitted += 1
+        while True:
+            if stop:
+                summary.stop_reason = f"stopped by {stop.reason}"
+                return
+            if rc.frames and summary.frames >= rc.frames:
+                summary.stop_reason = f"frame limit {rc.frames}"
+                return
+            while not ended and not worker.full and not (rc.frames and submitted >= rc.frames):
+                t0 = clock()
+                frame = source.read()
+                t1 = clock()
+                if frame is None:
+                    ended = True
+                    break
+                worker.submit(submitted, frame.image)
+                pending[submitted] = (frame, t0, t1)
+                submitted += 1
+            if not pending:
+                summary.stop_reason = "source ended"
+                return
+            result = worker.receive()
+            if result is None:
+                continue
+            index, found, stage_ns = result
+            frame, t0, t1 = pending.pop(index)
+            record = pipeline.process(frame, t0, t1, found, stage_ns)
+            pacer.wait()
+            if pipeline.emit(record, 0):
+                summary.stop_reason = "stopped from the window (e)"
+                return
+    finally:
+        worker.close()
 
 
 class LatestSlot:
