@@ -199,22 +199,21 @@ def test_signal_stops_cleanly_with_complete_files(tmp_path, signum, code, mode):
     assert decoded == frames
     det = (tmp_path / "d.csv").read_text()
     assert det.endswith("\n")
-    assert _children(proc.pid) == []  # no orphaned worker process
+    assert _processes_in(tmp_path) == []  # no orphaned worker process (workers share the cwd)
     assert _shm() == shm_before  # no shared-memory segment left behind
 
 
-def _children(pid):
-    """Live processes whose parent is ``pid`` (from /proc)."""
+def _processes_in(folder):
+    """Live processes whose working directory is ``folder`` (from /proc)."""
     import os
     found = []
     for entry in os.listdir("/proc"):
         if entry.isdigit():
             try:
-                stat = open(f"/proc/{entry}/stat").read()
+                if os.readlink(f"/proc/{entry}/cwd") == str(folder):
+                    found.append(int(entry))
             except OSError:
                 continue
-            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
-                found.append(int(entry))
     return found
 
 
