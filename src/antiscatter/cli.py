@@ -59,6 +59,8 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--seed", type=int, help="random seed of the simulator (default 0)")
     g.add_argument("--size", metavar="WxH", help="frame size for sim, camera and webcam")
     g.add_argument("--camera-fps", type=float, help="frame rate asked of the camera (default 60)")
+    g.add_argument("--camera-colour", action="store_true", default=None, help="BGR frames from the camera "
+                   "instead of the Y plane of its YUV420 stream (the default: grey without conversion)")
     g = run.add_argument_group("detector")
     g.add_argument("--detector", help=f"detector name ({_detector_help()})")
     g.add_argument("-p", "--param", action="append", metavar="KEY=VALUE", default=[],
@@ -408,7 +410,8 @@ def _run_config(args: argparse.Namespace):
 
     overrides: dict[str, dict[str, Any]] = {
         "source": {"spec": args.source, "crop": args.crop, "loop": args.loop, "preset": args.preset,
-                   "seed": args.seed, "size": args.size, "camera_fps": args.camera_fps},
+                   "seed": args.seed, "size": args.size, "camera_fps": args.camera_fps,
+                   "camera_colour": args.camera_colour},
         "detector": {"name": args.detector},
         "pattern": {"margin": args.margin},
         "track": {"enabled": args.track, "predict": args.predict, "latency_ms": args.latency_ms},

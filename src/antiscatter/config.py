@@ -47,6 +47,7 @@ class SourceConfig:
     seed: random seed for ``sim``.
     size: ``"WxH"`` for sim, camera and webcam; empty for the source's own.
     camera_fps: frame rate asked of the camera, frames per second.
+    camera_colour: BGR from the camera instead of the Y plane of YUV420 (the default, no conversion).
     """
 
     spec: str = "sim"
@@ -56,6 +57,7 @@ class SourceConfig:
     seed: int = 0
     size: str = ""
     camera_fps: float = 60.0
+    camera_colour: bool = False
 
     def __post_init__(self) -> None:
         if self.size:

@@ -43,7 +43,12 @@ class FakePicamera2:
     def capture_request(self):
         n = len(self.requests)
         w, h = self.config["main"]["size"]
-        image = np.full((h, w, 3), n, np.uint8)
+        if self.config["main"]["format"] == "YUV420":
+            stride = (w + 63) // 64 * 64  # padded rows, as the ISP delivers them
+            image = np.full((h * 3 // 2, stride), 200, np.uint8)
+            image[:h, :w] = (np.arange(w)[None, :] + n) % 256  # Y plane
+        else:
+            image = np.full((h, w, 3), n, np.uint8)
         request = FakeRequest(image, 1_000_000_000 + n * 16_666_667)
         self.requests.append(request)
         return request
@@ -55,8 +60,41 @@ class FakePicamera2:
         self.closed = True
 
 
+class FakeMappedArray:
+    """Picamera2's MappedArray: the request's buffer as an array, in place, inside a with block."""
+
+    entered = 0
+
+    def __init__(self, request, stream):
+        assert stream == "main"
+        self.request = request
+
+    def __enter__(self):
+        FakeMappedArray.entered += 1
+        self.array = self.request.image
+        return self
+
+    def __exit__(self, *exc):
+        del self.array
+
+
+def test_yuv_y_plane_without_conversion_through_mapped_array():
+    source = CameraSource(size=(60, 40), fps=120.0, picamera2=FakePicamera2, mapped_array=FakeMappedArray)
+    cam = FakePicamera2.instances[-1]
+    assert cam.config["main"]["format"] == "YUV420"
+    assert cam.config["controls"]["FrameDurationLimits"] == (8333, 8333)
+    frame = source.read()
+    assert frame.image.shape == (40, 60) and frame.image.dtype == np.uint8
+    np.testing.assert_array_equal(frame.image[0], np.arange(60) % 256)  # Y only, padding and UV cut off
+    assert FakeMappedArray.entered >= 1 and cam.requests[-1].released
+    assert frame.timestamp_ns == 1_000_000_000
+    frame.image[0, 0] = 99  # our own copy: the camera buffer went back untouched
+    assert cam.requests[0].image[0, 0] == 0
+    source.close()
+
+
 def test_camera_source_configures_and_reads_with_sensor_timestamps():
-    source = CameraSource(size=(64, 48), fps=60.0, picamera2=FakePicamera2)
+    source = CameraSource(size=(64, 48), fps=60.0, colour=True, picamera2=FakePicamera2)
     cam = FakePicamera2.instances[-1]
     assert cam.config["main"] == {"size": (64, 48), "format": "RGB888"}
     assert cam.config["controls"]["FrameDurationLimits"] == (16667, 16667)
@@ -76,5 +114,5 @@ def test_off_the_pi_the_camera_needs_picamera2():
     except ImportError:
         with pytest.raises(UsageError, match="source 'camera' needs the picamera2 package on a Raspberry Pi"):
             load_picamera2()
-    else:  # on a Pi the class loads
-        assert load_picamera2() is not None
+    else:  # on a Pi the classes load
+        assert all(load_picamera2())

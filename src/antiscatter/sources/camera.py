@@ -15,35 +15,46 @@ from .base import Frame, FrameSource
 __all__ = ["CameraSource", "load_picamera2"]
 
 
-def load_picamera2() -> Callable[[], Any]:
-    """The ``Picamera2`` class, or a one-line UsageError off the Pi."""
+def load_picamera2() -> tuple[Callable[[], Any], Any]:
+    """The ``Picamera2`` and ``MappedArray`` classes, or a one-line UsageError off the Pi."""
     try:
-        from picamera2 import Picamera2  # type: ignore[import-not-found]
+        from picamera2 import MappedArray, Picamera2  # type: ignore[import-not-found]
     except ImportError:
         raise UsageError("source 'camera' needs the picamera2 package on a Raspberry Pi "
                          "(sudo apt install python3-picamera2, and a venv made with "
                          "--system-site-packages); use sim, webcam:N, a folder or a video here") from None
-    return Picamera2
+    return Picamera2, MappedArray
 
 
 class CameraSource(FrameSource):
-    """ISP-processed BGR frames from the Pi camera.
+    """Frames from the Pi camera, tuned for latency.
 
     size: (width, height), default (728, 544) = half the IMX296 sensor, as in the report.
     fps: frame rate, set explicitly through ``FrameDurationLimits`` (a video
         configuration otherwise defaults to 30 fps).
-    picamera2: the Picamera2 class (tests pass a fake); loaded lazily when None.
+    colour: False (default) streams YUV420 and hands on the Y plane, read in
+        place through ``MappedArray`` -- grey without any colour conversion, one
+        plane copied out of the camera buffer so the buffer goes straight back;
+        True streams ISP-processed BGR (Picamera2's "RGB888" is B, G, R in memory).
+    picamera2, mapped_array: the Picamera2 and MappedArray classes (tests pass
+        fakes); loaded lazily when None.
 
-    Frames carry the sensor timestamp (``SensorTimestamp`` metadata, ns, on the
-    ``CLOCK_MONOTONIC`` clock) when the camera reports one.
+    Three buffers and ``queue=False``: a frame handed out is never a stale
+    queued one.  Frames carry the sensor timestamp (``SensorTimestamp``
+    metadata, ns, the ``CLOCK_MONOTONIC`` clock of ``time.monotonic_ns()``)
+    when the camera reports one.
     """
 
     name = "camera"
     live = True
 
-    def __init__(self, *, size: tuple[int, int] = (728, 544), fps: float = 60.0,
-                 picamera2: Callable[[], Any] | None = None) -> None:
-        factory = picamera2 or load_picamera2()
+    def __init__(self, *, size: tuple[int, int] = (728, 544), fps: float = 60.0, colour: bool = False,
+                 picamera2: Callable[[], Any] | None = None, mapped_array: Any = None) -> None:
+        if picamera2 is None:
+            picamera2, mapped_array = load_picamera2()
+        factory = picamera2
+        self._mapped = mapped_array
+        self.colour = colour
         try:
             self._cam = factory()
         except (RuntimeError, IndexError, OSError) as exc:
@@ -51,7 +62,7 @@ class CameraSource(FrameSource):
         frame_us = int(round(1e6 / fps))
         # Picamera2's "RGB888" is stored B, G, R per pixel: OpenCV's BGR order.
         config = self._cam.create_video_configuration(
-            main={"size": tuple(size), "format": "RGB888"}, buffer_count=3, queue=False,
+            main={"size": tuple(size), "format": "RGB888" if colour else "YUV420"}, buffer_count=3, queue=False,
             controls={"FrameDurationLimits": (frame_us, frame_us)})
         self._cam.configure(config)
         self._cam.start()
@@ -62,7 +73,14 @@ class CameraSource(FrameSource):
     def read(self) -> Frame | None:
         request = self._cam.capture_request()
         try:
-            image = request.make_array("main")
+            if self.colour or self._mapped is None:
+                image = request.make_array("main")
+                if not self.colour:
+                    image = image[: self.size[1], : self.size[0]].copy()
+            else:
+                with self._mapped(request, "main") as mapped:
+                    # YUV420: the first `height` rows are Y; copy that plane only
+                    image = mapped.array[: self.size[1], : self.size[0]].copy()
             metadata = request.get_metadata()
         finally:
             request.release()
