@@ -1,6 +1,7 @@
 """Light outputs, picked by name; several can run at once.
 
 ``framebuffer[:/dev/fbN]`` the projector through the Linux framebuffer;
+``kms`` the projector through DRM/KMS with page flips on vblank (pykms);
 ``window`` OpenCV windows; ``files:DIR`` or ``files:NAME.mkv`` pattern frames
 to disk; ``none`` nothing; ``auto`` a window where a display exists, else none.
 """
@@ -12,7 +13,7 @@ from .base import LightOutput, NullOutput
 
 __all__ = ["LightOutput", "NullOutput", "open_output", "OUTPUT_KINDS"]
 
-OUTPUT_KINDS = ("framebuffer[:/dev/fbN]", "window", "files:DIR", "files:NAME.mkv", "none", "auto")
+OUTPUT_KINDS = ("framebuffer[:/dev/fbN]", "kms", "window", "files:DIR", "files:NAME.mkv", "none", "auto")
 
 
 def open_output(spec: str, *, fps: float = 60.0) -> LightOutput:
@@ -26,6 +27,9 @@ def open_output(spec: str, *, fps: float = 60.0) -> LightOutput:
     if kind == "window" and not arg:
         from .window import WindowOutput
         return WindowOutput()
+    if kind == "kms" and not arg:
+        from .kms import KmsOutput
+        return KmsOutput()
     if kind == "framebuffer":
         from .framebuffer import FramebufferOutput
         return FramebufferOutput(arg or "/dev/fb0")
