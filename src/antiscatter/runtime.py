@@ -442,17 +442,24 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
     return summary
 
 
+def _finished(summary: RunSummary, stop: "_StopFlag", rc: Any) -> bool:
+    """True (with the reason recorded) once a signal arrived or the frame limit is reached."""
+    if stop:
+        summary.stop_reason = f"stopped by {stop.reason}"
+        return True
+    if rc.frames and summary.frames >= rc.frames:
+        summary.stop_reason = f"frame limit {rc.frames}"
+        return True
+    return False
+
+
 def _run_single(pipeline: _Pipeline, source: FrameSource, stop: "_StopFlag", rc: Any) -> None:
     """One thread: pace, capture, process, show -- the report's design."""
     summary = pipeline.summary
     pacer = Pacer(rc.fps)
     clock = time.perf_counter_ns
     while True:
-        if stop:
-            summary.stop_reason = f"stopped by {stop.reason}"
-            return
-        if rc.frames and summary.frames >= rc.frames:
-            summary.stop_reason = f"frame limit {rc.frames}"
+        if _finished(summary, stop, rc):
             return
         pacer.wait()
         t0 = clock()
@@ -579,11 +586,7 @@ def _run_processes(pipeline: _Pipeline, source: FrameSource, stop: "_StopFlag", 
         pending[submitted] = (first, t0, t1)
         submitted += 1
         while True:
-            if stop:
-                summary.stop_reason = f"stopped by {stop.reason}"
-                return
-            if rc.frames and summary.frames >= rc.frames:
-                summary.stop_reason = f"frame limit {rc.frames}"
+            if _finished(summary, stop, rc):
                 return
             while not ended and not worker.full and not (rc.frames and submitted >= rc.frames):
                 t0 = clock()
