@@ -133,3 +133,26 @@ def test_process_controls_report_whether_they_took_effect(tmp_path):
     text = log.getvalue()
     assert "running on CPUs [0]" in text or "warning: --cpus" in text
     assert "memory locked" in text or "warning: --mlock" in text
+
+
+def test_bench_modes_reports_every_mode(cli):
+    import json
+    result = cli("bench", "--modes", "--frames", "15", "--sizes", "320x240", "--json")
+    assert result.code == 0, result.err
+    modes = json.loads(result.out)["modes"]
+    assert [m["mode"] for m in modes] == ["single", "threads", "processes", "processes-pickle"]
+    for m in modes:
+        assert m["frames"] == 15 and m["fps"] > 0
+        assert 0 < m["latency_p50_ms"] <= m["latency_p99_ms"] <= m["latency_max_ms"]
+
+
+def test_emulated_camera_blocks_until_the_next_exposure():
+    from antiscatter.sources.replay import ReplaySource
+    source = ReplaySource([np.zeros((4, 4), np.uint8)], frames=10, fps=200)
+    stamps = [source.read().timestamp_ns for _ in range(5)]
+    gaps = np.diff(stamps) / 1e6
+    assert np.allclose(gaps, 5.0, atol=0.01)  # exposures on a fixed 5 ms grid
+    assert source.live
+    time.sleep(0.012)  # a slow reader misses two exposures, as with queue=False
+    late = source.read().timestamp_ns
+    assert round((late - stamps[-1]) / 5e6) >= 3

@@ -261,9 +261,9 @@ class _Record:
     stage_ns: list[int]
     track_ns: int
     track_ids: np.ndarray | None
-    pattern: np.ndarray
-    t_processed: int
-    t_pattern: int
+    pattern: Any  # the holes (Detections) until rendered, then the (H, W) uint8 pattern
+    t_processed: int  # when rendering began
+    t_pattern: int  # when rendering ended
 
 
 class _Pipeline:
@@ -295,6 +295,11 @@ class _Pipeline:
     def process(self, frame: Any, t0: int, t1: int, found: Detections | None = None,
                 stage_ns: list[int] | None = None) -> _Record:
         """Detect (unless ``found`` came from a detector process), track, render the pattern."""
+        return self.render(self.analyse(frame, t0, t1, found, stage_ns))
+
+    def analyse(self, frame: Any, t0: int, t1: int, found: Detections | None = None,
+                stage_ns: list[int] | None = None) -> _Record:
+        """Detect and track; the holes to draw wait in ``record.pattern`` until :meth:`render`."""
         clock = self.clock
         tc = self.config.track
         if found is None:
@@ -315,11 +320,18 @@ class _Pipeline:
                 holes = self.tracker.holes(captured)
             track_ns = clock() - t_track
             t_processed = clock()
+        return _Record(frame, t0, t1, detections, stage_ns, track_ns, track_ids, holes, t_processed, 0)
+
+    def render(self, rec: _Record) -> _Record:
+        """Draw the record's holes into the next pattern buffer."""
+        t_start = self.clock()
         buffer = self.buffers[self.next_buffer]
         self.next_buffer = (self.next_buffer + 1) % len(self.buffers)
-        pattern = render_pattern(holes, size=self.projector_size, mapping=self.mapping,
-                                 margin=self.config.pattern.margin, out=buffer)
-        return _Record(frame, t0, t1, detections, stage_ns, track_ns, track_ids, pattern, t_processed, clock())
+        rec.pattern = render_pattern(rec.pattern, size=self.projector_size, mapping=self.mapping,
+                                     margin=self.config.pattern.margin, out=buffer)
+        rec.t_pattern = self.clock()
+        rec.t_processed = t_start
+        return rec
 
     def emit(self, rec: _Record, dropped: int) -> bool:
         """Show the pattern, log the frame; True when an output asked to stop."""
@@ -521,7 +533,7 @@ def _run_threads(pipeline: _Pipeline, source: FrameSource, stop: "_StopFlag", rc
             item = captured.get(finished)
             if item is None:
                 return
-            processed.put(pipeline.process(*item))
+            processed.put(pipeline.analyse(*item))  # the output thread renders: the stages balance
 
     def output_loop() -> None:
         pacer = Pacer(rc.fps)
@@ -529,6 +541,7 @@ def _run_threads(pipeline: _Pipeline, source: FrameSource, stop: "_StopFlag", rc
             rec = processed.get(finished)
             if rec is None:
                 return
+            rec = pipeline.render(rec)
             pacer.wait()
             dropped = captured.take_dropped() + processed.take_dropped()
             if pipeline.emit(rec, dropped):
