@@ -94,6 +94,10 @@ def build_parser() -> argparse.ArgumentParser:
                    "(a warning without permission)")
     g.add_argument("--cpus", metavar="2,3", help="CPU affinity")
     g.add_argument("--mlock", action="store_true", default=None, help="lock memory (mlockall)")
+    g.add_argument("--web", metavar="[HOST:]PORT", help="serve the control panel (live views, figures, buttons "
+                   "Light / Record / Stop) on this port; 127.0.0.1 unless a host is given")
+    g.add_argument("--record-to", metavar="FILE.mkv", help="where the panel's Record button writes the input "
+                   "frames (default: antiscatter-<date>-<time>.mkv)")
     g.add_argument("--metrics", metavar="CSV", help="per-frame stage timings, the report's columns first")
     g.add_argument("--detections", metavar="CSV", help="one row per particle: frame,x,y,radius")
     sim = commands.add_parser(
@@ -172,6 +176,33 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--json", action="store_true", help="print the results as JSON")
     ev.add_argument("--csv", metavar="FILE", help="write per-frame figures")
     ev.add_argument("--plot", metavar="FILE.png", help="precision-recall over the threshold and errors")
+
+    rec = commands.add_parser(
+        "record", help="lossless FFV1 recording of the camera (or another source), the light as a plain lamp",
+        description="Record frames losslessly (FFV1 in Matroska, encoded in a worker thread with PyAV) from a "
+                    "bounded RAM buffer that spills to disk (or stops, --overflow stop) rather than drop a frame. "
+                    "Keys on a terminal: l light on/off, r record/pause, e exit. Ctrl-C and SIGTERM leave a "
+                    "valid file holding every frame captured. The file plays back as a source of 'run'.",
+        epilog="Examples:\n"
+               "  antiscatter record tank.mkv --source camera --size 728x544 --fps 60 --light on "
+               "--output framebuffer\n"
+               "  antiscatter record test.mkv --source sim --seconds 5 --web 8080",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    rec.add_argument("out", help="the .mkv file to write")
+    rec.add_argument("--source", default="sim", help="camera, webcam:N, a video file or sim (default sim)")
+    rec.add_argument("--size", metavar="WxH", help="capture size (camera, webcam, sim)")
+    rec.add_argument("--fps", type=float, default=30.0, help="capture rate; paces sim and video (default 30)")
+    rec.add_argument("--seconds", type=float, default=0.0, help="stop after S seconds (default: no limit)")
+    rec.add_argument("--frames", type=int, default=0, help="stop after N frames (default: no limit)")
+    rec.add_argument("--light", choices=("on", "off"), default="on", help="the lamp at the start (default on)")
+    rec.add_argument("--paused", action="store_true", help="start without recording (r or the panel starts it)")
+    rec.add_argument("-o", "--output", action="append", metavar="NAME",
+                     help="light output(s) driven as a plain lamp: framebuffer[:/dev/fbN], kms, none (default)")
+    rec.add_argument("--buffer-mb", type=float, default=512.0, help="RAM for frames waiting to be encoded (default 512)")
+    rec.add_argument("--overflow", choices=("spill", "stop"), default="spill",
+                     help="when the buffer is full: spill to disk in order (default) or stop recording")
+    rec.add_argument("--camera-colour", action="store_true", help="BGR from the camera instead of the Y plane")
+    rec.add_argument("--web", metavar="[HOST:]PORT", help="serve the control panel (127.0.0.1 unless a host is given)")
 
     be = commands.add_parser(
         "bench", help="per-stage latency of every detector, side by side (the report's table 1)",
@@ -357,6 +388,35 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _record(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from .config import parse_size
+    from .record.command import RecordRequest, record
+
+    size = None
+    if args.size:
+        try:
+            size = parse_size(args.size, key="--size")
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+    for name, value in (("--fps", args.fps), ("--seconds", args.seconds), ("--frames", args.frames),
+                        ("--buffer-mb", args.buffer_mb)):
+        if value < 0:
+            raise UsageError(f"{name} {value}: allowed >= 0")
+    request = RecordRequest(out=Path(args.out), source=args.source, size=size, fps=args.fps,
+                            seconds=args.seconds, frames=args.frames, light=args.light == "on",
+                            paused=args.paused, outputs=tuple(args.output or ("none",)),
+                            buffer_mb=args.buffer_mb, overflow=args.overflow, web=args.web or "",
+                            colour=args.camera_colour)
+    summary = record(request)
+    if summary["reason"].startswith("stopped by SIGINT"):
+        return 130
+    if summary["reason"].startswith("stopped by SIGTERM"):
+        return 143
+    return 0
+
+
 def _simulate(args: argparse.Namespace) -> int:
     from pathlib import Path
 
@@ -418,7 +478,8 @@ def _run_config(args: argparse.Namespace):
         "output": {"outputs": tuple(args.output) if args.output else None},
         "run": {"frames": args.frames, "fps": args.fps, "nice": args.nice,
                 "metrics": args.metrics, "detections": args.detections, "mode": args.mode,
-                "rt_priority": args.rt_priority, "cpus": args.cpus, "mlock": args.mlock},
+                "rt_priority": args.rt_priority, "cpus": args.cpus, "mlock": args.mlock,
+                "web": args.web, "record_to": args.record_to},
     }
     if args.projector_size:
         try:
@@ -474,6 +535,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _evaluate(args)
         if args.command == "bench":
             return _bench(args)
+        if args.command == "record":
+            return _record(args)
     except UsageError as exc:
         print(f"antiscatter {args.command}: error: {exc}", file=sys.stderr)
         return 2

@@ -172,6 +172,9 @@ class RunConfig:
     rt_priority: SCHED_FIFO priority 1..99, None = leave it.
     cpus: CPU numbers to run on, e.g. "2,3"; empty = all.
     mlock: lock the process's memory (no page faults in the loop).
+    web: serve the control panel on ``[HOST:]PORT`` (host 127.0.0.1 unless given); empty = none.
+    record_to: the .mkv the panel's Record button writes the input frames to (default: a
+        timestamped file in the current folder).
     """
 
     frames: int = 0
@@ -183,6 +186,8 @@ class RunConfig:
     rt_priority: int | None = None
     cpus: str = ""
     mlock: bool = False
+    web: str = ""
+    record_to: str = ""
 
     def __post_init__(self) -> None:
         if self.mode not in ("single", "threads", "processes", "processes-pickle"):

@@ -291,6 +291,13 @@ class _Pipeline:
         self.stage_columns = [f"{st.label} Duration (s)" for st in detector.stages]
         self.row = [0.0] * len(columns)
         self.clock = time.perf_counter_ns
+        self.panel: Any = None
+        self.light_on = True
+        self.record_wanted = False
+        self.recorder: Any = None
+        self.recorded: list[dict[str, float]] = []
+        self._closers: list[threading.Thread] = []
+        self._dark: np.ndarray | None = None
 
     def process(self, frame: Any, t0: int, t1: int, found: Detections | None = None,
                 stage_ns: list[int] | None = None) -> _Record:
@@ -337,9 +344,15 @@ class _Pipeline:
         """Show the pattern, log the frame; True when an output asked to stop."""
         clock = self.clock
         t_show = clock()
+        shown = rec.pattern
+        if not self.light_on:  # the panel's Light off: the lamp goes dark, the loop goes on
+            if self._dark is None or self._dark.shape != shown.shape:
+                self._dark = np.zeros_like(shown)
+            shown = self._dark
         for output in self.outputs:
-            output.show(rec.pattern, rec.frame, rec.detections)
+            output.show(shown, rec.frame, rec.detections)
         t_out = clock()
+        self._record(rec.frame.image)
         shown_ns = time.monotonic_ns()
         latency_ns = shown_ns - rec.frame.timestamp_ns
         summary = self.summary
@@ -382,7 +395,50 @@ class _Pipeline:
                     (frame.index, f"{x:.3f}", f"{y:.3f}", f"{r:.3f}", i)
                     for (x, y), r, i in zip(detections.centres.tolist(), detections.radii.tolist(),
                                             rec.track_ids.tolist()))
+        if self.panel is not None:
+            self._publish(rec, latency_ns, dropped)
         return any(o.exit_requested for o in self.outputs)
+
+    def _record(self, image: np.ndarray) -> None:
+        """Start, feed or stop the panel's recording of the input frames."""
+        if self.record_wanted and self.recorder is None:
+            from .record import Recorder
+
+            path = self.config.run.record_to or time.strftime("antiscatter-%Y%m%d-%H%M%S.mkv")
+            fps = self.config.run.fps or 30.0
+            self.recorder = Recorder(path, fps=fps)
+        elif not self.record_wanted and self.recorder is not None:
+            self.stop_recording()
+        if self.recorder is not None:
+            self.recorder.write(image)
+
+    def stop_recording(self, *, wait: bool = False) -> None:
+        """Finish the recording in the background (the loop must not wait for the encoder)."""
+        if self.recorder is not None:
+            recorder, self.recorder = self.recorder, None
+            closer = threading.Thread(target=lambda: self.recorded.append({"path": str(recorder.path),
+                                                                         **recorder.close()}),
+                                      name="antiscatter-recorder-close")
+            closer.start()
+            self._closers.append(closer)
+        if wait:
+            for closer in self._closers:
+                closer.join()
+
+    def _publish(self, rec: _Record, latency_ns: int, dropped: int) -> None:
+        summary = self.summary
+        sample = {"latency_ms": latency_ns / 1e6, "particles": float(len(rec.detections))}
+        stats = None
+        if summary.frames % 10 == 1:
+            recent = np.asarray(summary.latencies_ns[-120:], dtype=np.float64) / 1e6
+            times = summary.output_times[-60:]
+            fps = (len(times) - 1) / ((times[-1] - times[0]) / 1e9) if len(times) > 2 else 0.0
+            stats = {"frames": summary.frames, "fps": fps, "latency_p50_ms": float(np.median(recent)),
+                     "latency_p99_ms": float(np.percentile(recent, 99)), "particles": len(rec.detections),
+                     "dropped": summary.dropped, "light": "on" if self.light_on else "off",
+                     "recording": str(self.recorder.path) if self.recorder is not None else "no"}
+        self.panel.publish(image=rec.frame.image, detections=rec.detections, pattern=rec.pattern,
+                           stats=stats, sample=sample)
 
 
 def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
@@ -440,7 +496,10 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
               f"output {names}, mode {rc.mode}", file=log)
         pipeline = _Pipeline(config, detector, tracker, source, outputs, metrics_writer, detections_writer,
                              columns, summary, buffers=1 if rc.mode == "single" else 3)
+        stack.callback(pipeline.stop_recording, wait=True)  # a recording is finished however the run ends
         stop = stack.enter_context(_StopFlag())
+        if rc.web:
+            pipeline.panel = stack.enter_context(_open_panel(rc.web, pipeline, stop, log))
         started = time.perf_counter_ns()
         if rc.mode == "threads":
             _run_threads(pipeline, source, stop, rc)
@@ -452,6 +511,38 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
         summary.wall_s = (time.perf_counter_ns() - started) / 1e9
     _print_summary(summary, out)
     return summary
+
+
+class _PanelContext:
+    def __init__(self, panel: Any) -> None:
+        self.panel = panel
+
+    def __enter__(self) -> Any:
+        return self.panel
+
+    def __exit__(self, *exc: object) -> None:
+        self.panel.close()
+
+
+def _open_panel(address: str, pipeline: _Pipeline, stop: "_StopFlag", log: TextIO) -> _PanelContext:
+    """The web panel with the report's three keys as buttons (flags the loop reads)."""
+    from .web import ControlPanel
+
+    def light() -> str:
+        pipeline.light_on = not pipeline.light_on
+        return f"light {'on' if pipeline.light_on else 'off'}"
+
+    def record() -> str:
+        pipeline.record_wanted = not pipeline.record_wanted
+        return "recording" if pipeline.record_wanted else "recording stopped"
+
+    def finish() -> str:
+        stop.reason = stop.reason or "panel"
+        return "stopping"
+
+    panel = ControlPanel(address, title="run", actions={"light": light, "record": record, "stop": finish})
+    print(f"control panel: {panel.url}", file=log)
+    return _PanelContext(panel)
 
 
 def _finished(summary: RunSummary, stop: "_StopFlag", rc: Any) -> bool:

@@ -22,7 +22,8 @@ class LightOutput:
     name: str = "output"
     exit_requested: bool = False
 
-    def show(self, pattern: np.ndarray, frame: Frame, detections: Detections) -> None:
+    def show(self, pattern: np.ndarray, frame: Frame | None = None,
+             detections: Detections | None = None) -> None:
         raise NotImplementedError
 
     def close(self) -> None:
@@ -40,5 +41,6 @@ class NullOutput(LightOutput):
 
     name = "none"
 
-    def show(self, pattern: np.ndarray, frame: Frame, detections: Detections) -> None:
+    def show(self, pattern: np.ndarray, frame: Frame | None = None,
+             detections: Detections | None = None) -> None:
         return None

@@ -27,13 +27,17 @@ class PngFolderOutput(LightOutput):
 
     def __init__(self, folder: str | Path) -> None:
         self.folder = Path(folder)
+        self._count = 0
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise UsageError(f"{self.folder}: cannot create the output folder ({exc.strerror})") from None
 
-    def show(self, pattern: np.ndarray, frame: Frame, detections: Detections) -> None:
-        path = self.folder / f"{frame.index}.png"
+    def show(self, pattern: np.ndarray, frame: Frame | None = None,
+             detections: Detections | None = None) -> None:
+        index = frame.index if frame is not None else self._count
+        self._count += 1
+        path = self.folder / f"{index}.png"
         if not cv2.imwrite(str(path), pattern, [cv2.IMWRITE_PNG_COMPRESSION, 1]):
             raise OSError(f"{path}: could not be written")
 
@@ -54,7 +58,8 @@ class Ffv1Output(LightOutput):
         self._fps = Fraction(fps).limit_denominator(1001) if fps > 0 else Fraction(60)
         self._stream = None
 
-    def show(self, pattern: np.ndarray, frame: Frame, detections: Detections) -> None:
+    def show(self, pattern: np.ndarray, frame: Frame | None = None,
+             detections: Detections | None = None) -> None:
         if self._stream is None:
             stream = self._container.add_stream("ffv1", rate=self._fps)
             stream.width = pattern.shape[1]

@@ -47,13 +47,16 @@ class WindowOutput(LightOutput):
             raise UsageError("output 'window' needs OpenCV with GUI support "
                              "(pip install opencv-python instead of opencv-python-headless)") from None
 
-    def show(self, pattern: np.ndarray, frame: Frame, detections: Detections) -> None:
-        image = frame.image if frame.image.ndim == 3 else cv2.cvtColor(frame.image, cv2.COLOR_GRAY2BGR)
-        overlay = image.copy()
-        for (x, y), r in zip(detections.centres.tolist(), detections.radii.tolist()):
-            cv2.circle(overlay, (int(round(x)), int(round(y))), max(int(round(r)), 1), (0, 0, 255), 1)
-        cv2.imshow("input", image)
-        cv2.imshow("segmentation", overlay)
+    def show(self, pattern: np.ndarray, frame: Frame | None = None,
+             detections: Detections | None = None) -> None:
+        if frame is not None:
+            image = frame.image if frame.image.ndim == 3 else cv2.cvtColor(frame.image, cv2.COLOR_GRAY2BGR)
+            overlay = image.copy()
+            if detections is not None:
+                for (x, y), r in zip(detections.centres.tolist(), detections.radii.tolist()):
+                    cv2.circle(overlay, (int(round(x)), int(round(y))), max(int(round(r)), 1), (0, 0, 255), 1)
+            cv2.imshow("input", image)
+            cv2.imshow("segmentation", overlay)
         cv2.imshow("pattern", pattern)
         key = cv2.waitKey(1) & 0xFF
         if key in (ord("e"), 27):
