@@ -1,0 +1,82 @@
+"""The control panel end to end in a real headless Chromium (Debian's chromium + chromedriver, via Selenium)."""
+
+import shutil
+import subprocess
+import sys
+import time
+
+import av
+import pytest
+from selenium import webdriver
+from selenium.webdriver.chrome.options import Options
+from selenium.webdriver.chrome.service import Service
+from selenium.webdriver.common.by import By
+from selenium.webdriver.support.ui import WebDriverWait
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+CHROMEDRIVER = shutil.which("chromedriver") or "/usr/bin/chromedriver"
+
+
+@pytest.fixture
+def browser(tmp_path):
+    options = Options()
+    options.binary_location = CHROMIUM
+    for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                 f"--user-data-dir={tmp_path / 'profile'}", "--window-size=1400,1000"):
+        options.add_argument(flag)
+    driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
+    yield driver
+    driver.quit()
+
+
+IMAGE_HASH = """
+const img = document.getElementById(arguments[0]);
+if (!img.naturalWidth) return null;
+const c = document.createElement('canvas'); c.width = img.naturalWidth; c.height = img.naturalHeight;
+const g = c.getContext('2d'); g.drawImage(img, 0, 0);
+const d = g.getImageData(0, 0, c.width, c.height).data; let h = 0;
+for (let i = 0; i < d.length; i += 97) h = (h * 31 + d[i]) >>> 0;
+return h;
+"""
+
+
+def test_panel_in_a_real_browser(tmp_path, browser):
+    proc = subprocess.Popen([sys.executable, "-m", "antiscatter", "run", "--output", "none", "--fps", "30",
+                             "--web", "127.0.0.1:0", "--record-to", "rec.mkv"],
+                            cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        url = None
+        while url is None:
+            line = proc.stderr.readline()
+            assert line, "run ended before serving the panel"
+            if line.startswith("control panel: "):
+                url = line.split(": ", 1)[1].strip()
+        browser.get(url)
+        wait = WebDriverWait(browser, 20)
+        assert "antiscatter" in browser.title
+        # the live image arrives and keeps changing
+        first = wait.until(lambda d: d.execute_script(IMAGE_HASH, "input"))
+        wait.until(lambda d: d.execute_script(IMAGE_HASH, "input") not in (None, first))
+        wait.until(lambda d: d.execute_script(IMAGE_HASH, "pattern") is not None)
+        # the figures change
+        frames = lambda d: int(d.find_element(By.ID, "stat-frames").text)  # noqa: E731
+        before = wait.until(frames)
+        wait.until(lambda d: frames(d) > before)
+        # Record start, then stop: a valid file
+        browser.find_element(By.ID, "record").click()
+        wait.until(lambda d: d.find_element(By.ID, "status").text == "recording")
+        wait.until(lambda d: d.find_element(By.ID, "stat-recording").text == "rec.mkv")
+        time.sleep(1.0)
+        browser.find_element(By.ID, "record").click()
+        wait.until(lambda d: d.find_element(By.ID, "status").text == "recording stopped")
+        # Stop ends the run
+        browser.find_element(By.ID, "stop").click()
+        out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    assert "stopped by panel" in out
+    with av.open(str(tmp_path / "rec.mkv")) as container:
+        assert sum(1 for _ in container.decode(video=0)) >= 15
