@@ -92,3 +92,36 @@ def test_record_bad_input(tmp_path, cli):
     assert result.code == 2 and "no such file or folder" in result.err
     result = cli("record", str(tmp_path / "r.mkv"), "--fps", "-1")
     assert result.code == 2 and "--fps -1.0: allowed >= 0" in result.err
+
+
+def test_record_panel_pauses_and_stops(tmp_path):
+    import json
+    import urllib.request
+    proc = subprocess.Popen([sys.executable, "-m", "antiscatter", "record", "r.mkv", "--source", "sim", "--fps", "30",
+                             "--web", "127.0.0.1:0"], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        url = None
+        while url is None:
+            line = proc.stderr.readline()
+            assert line, "record ended before serving the panel"
+            if line.startswith("control panel: "):
+                url = line.split(": ", 1)[1].strip()
+        post = lambda name: json.loads(urllib.request.urlopen(  # noqa: E731
+            urllib.request.Request(url + "action/" + name, method="POST"), timeout=5).read())["message"]
+        time.sleep(1.0)
+        assert post("record") == "recording off"  # paused
+        time.sleep(0.5)
+        stats = json.loads(urllib.request.urlopen(url + "stats", timeout=5).read())
+        assert stats["recording"] == "no" and stats["captured"] > stats["recorded"] - 1
+        assert post("light") == "light off"
+        post("stop")
+        out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    match = re.search(r"recorded (\d+) of (\d+) captured frames", out)
+    recorded, captured = int(match.group(1)), int(match.group(2))
+    assert 0 < recorded < captured  # the pause was honoured
+    assert len(decode(tmp_path / "r.mkv", "bgr24")) == recorded
