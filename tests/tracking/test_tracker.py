@@ -123,3 +123,36 @@ def test_bad_arguments_and_time_going_back():
     tracker.update(Detections.empty(), 1.0)
     with pytest.raises(ValueError, match="earlier than the last update"):
         tracker.update(Detections.empty(), 0.5)
+
+
+def test_block_filter_equals_the_full_5x5_kalman_filter():
+    """The tracker's closed-form per-axis filter against a textbook full-matrix Kalman filter."""
+    rng = np.random.default_rng(3)
+    tracker = Tracker(accel_noise=900.0, radius_noise=3.0, position_noise=0.8, radius_measurement_noise=1.2,
+                      initial_speed=250.0)
+    q, rn, pm, rm, v0 = 900.0 ** 2, 3.0 ** 2, 0.8 ** 2, 1.2 ** 2, 250.0 ** 2
+    H = np.array([[1, 0, 0, 0, 0], [0, 1, 0, 0, 0], [0, 0, 0, 0, 1]], float)
+    R = np.diag([pm, pm, rm])
+    times = np.cumsum(rng.uniform(0.01, 0.03, 25))
+    truth = np.array([100.0, 50.0])
+    x = P = None
+    for i, t in enumerate(times):
+        z = np.array([*(truth + [120 * t, -60 * t] + rng.normal(0, 0.8, 2)), 4 + rng.normal(0, 1)])
+        tracker.update(Detections([z[:2]], [z[2]]), t)
+        if x is None:
+            x = np.array([z[0], z[1], 0, 0, z[2]])
+            P = np.diag([pm, pm, v0, v0, rm])
+        else:
+            dt = t - times[i - 1]
+            F = np.eye(5)
+            F[0, 2] = F[1, 3] = dt
+            Q = np.zeros((5, 5))
+            for p, v in ((0, 2), (1, 3)):
+                Q[p, p], Q[p, v], Q[v, p], Q[v, v] = q * dt ** 4 / 4, q * dt ** 3 / 2, q * dt ** 3 / 2, q * dt ** 2
+            Q[4, 4] = rn * dt
+            x, P = F @ x, F @ P @ F.T + Q
+            K = P @ H.T @ np.linalg.inv(H @ P @ H.T + R)
+            x, P = x + K @ (z - H @ x), (np.eye(5) - K @ H) @ P
+    np.testing.assert_allclose(tracker.x[0], x, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose([tracker.pp[0, 0], tracker.pv[0, 0], tracker.vv[0, 0], tracker.rr[0]],
+                               [P[0, 0], P[0, 2], P[2, 2], P[4, 4]], rtol=1e-9)

@@ -1,7 +1,11 @@
 """A constant-velocity Kalman tracker, vectorised over all tracks in numpy.
 
 State per track: x, y (px), vx, vy (px/s) and radius r (px).  Motion: constant
-velocity with white acceleration noise; the radius is a random walk.
+velocity with white acceleration noise; the radius is a random walk.  The two
+axes and the radius are independent under this model (block-diagonal F, Q, H
+and R), so each track's covariance is kept as two 2x2 position-velocity blocks
+and one radius variance, and the filter runs as closed-form element-wise
+array arithmetic -- exactly the full Kalman filter, without 5x5 matrix stacks.
 Association: gated, optimal one-to-one assignment on the distance between each
 track's predicted centre and each detection (:func:`antiscatter.assignment.match`,
 sparse, so hundreds of particles cost little), the gate being ``gate_sigma``
@@ -23,7 +27,6 @@ from ..detections import Detections
 
 __all__ = ["Tracker", "Tracks"]
 
-_H = np.array([[1, 0, 0, 0, 0], [0, 1, 0, 0, 0], [0, 0, 0, 0, 1]], dtype=np.float64)
 
 
 @dataclass(frozen=True, eq=False)
@@ -85,7 +88,11 @@ class Tracker:
         self.measurement = np.diag([position_noise ** 2, position_noise ** 2, radius_measurement_noise ** 2])
         self.initial_speed = initial_speed
         self.x = np.empty((0, 5))
-        self.P = np.empty((0, 5, 5))
+        # covariance blocks per track: for axis a in (x, y): pp[a], pv[a], vv[a]; radius: rr
+        self.pp = np.empty((0, 2))
+        self.pv = np.empty((0, 2))
+        self.vv = np.empty((0, 2))
+        self.rr = np.empty(0)
         self.ids = np.empty(0, np.int64)
         self.hits = np.empty(0, np.int64)
         self.misses = np.empty(0, np.int64)
@@ -93,24 +100,17 @@ class Tracker:
         self._next_id = 1
 
     # ------------------------------------------------------------- model
-    def _transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        F = np.eye(5)
-        F[0, 2] = F[1, 3] = dt
-        q = self.accel_noise ** 2
-        Q = np.zeros((5, 5))
-        for p, v in ((0, 2), (1, 3)):
-            Q[p, p] = q * dt ** 4 / 4
-            Q[p, v] = Q[v, p] = q * dt ** 3 / 2
-            Q[v, v] = q * dt ** 2
-        Q[4, 4] = self.radius_noise ** 2 * dt
-        return F, Q
-
     def _predict(self, dt: float) -> None:
         if dt <= 0 or len(self.x) == 0:
             return
-        F, Q = self._transition(dt)
-        self.x = self.x @ F.T
-        self.P = F @ self.P @ F.T + Q
+        q = self.accel_noise ** 2
+        self.x[:, 0:2] += self.x[:, 2:4] * dt
+        # P' = F P F^T + Q per axis, F = [[1, dt], [0, 1]], Q = q [[dt^4/4, dt^3/2], [dt^3/2, dt^2]]
+        pp, pv, vv = self.pp, self.pv, self.vv
+        self.pp = pp + 2 * dt * pv + dt * dt * vv + q * dt ** 4 / 4
+        self.pv = pv + dt * vv + q * dt ** 3 / 2
+        self.vv = vv + q * dt * dt
+        self.rr = self.rr + self.radius_noise ** 2 * dt
 
     # ------------------------------------------------------------ update
     def update(self, detections: Detections, timestamp: float) -> Tracks:
@@ -124,20 +124,26 @@ class Tracker:
         self._predict(dt)
         self.timestamp = timestamp
         n, d = len(self.x), len(detections)
-        S_pos = self.P[:, :2, :2] + self.measurement[:2, :2]
-        spread = np.sqrt(np.maximum(S_pos[:, 0, 0], S_pos[:, 1, 1])) if n else np.empty(0)
+        m_pos, m_rad = self.measurement[0, 0], self.measurement[2, 2]
+        spread = np.sqrt(np.max(self.pp, axis=1) + m_pos) if n else np.empty(0)
         gate = np.clip(self.gate_sigma * spread, self.min_gate, self.max_gate)
         matches, unmatched_tracks, unmatched_dets = match(self.x[:, :2], gate, detections.centres)
         detection_ids = np.full(d, -1, np.int64)
         if len(matches):
             t, k = matches[:, 0], matches[:, 1]
-            z = np.column_stack([detections.centres[k], detections.radii[k]])
-            P = self.P[t]
-            S = _H @ P @ _H.T + self.measurement
-            K = P @ _H.T @ np.linalg.inv(S)
-            innovation = z - self.x[t] @ _H.T
-            self.x[t] = self.x[t] + np.einsum("nij,nj->ni", K, innovation)
-            self.P[t] = (np.eye(5) - K @ _H) @ P
+            pp, pv, vv = self.pp[t], self.pv[t], self.vv[t]
+            s_pos = pp + m_pos  # innovation variance per axis
+            k_p, k_v = pp / s_pos, pv / s_pos  # Kalman gains for position and velocity
+            innovation = detections.centres[k] - self.x[t, 0:2]
+            self.x[t, 0:2] += k_p * innovation
+            self.x[t, 2:4] += k_v * innovation
+            self.pp[t] = (1 - k_p) * pp
+            self.pv[t] = (1 - k_p) * pv
+            self.vv[t] = vv - k_v * pv
+            rr = self.rr[t]
+            k_r = rr / (rr + m_rad)
+            self.x[t, 4] += k_r * (detections.radii[k] - self.x[t, 4])
+            self.rr[t] = (1 - k_r) * rr
             self.hits[t] += 1
             self.misses[t] = 0
             detection_ids[k] = self.ids[t]
@@ -147,7 +153,8 @@ class Tracker:
         confirmed = self.hits >= self.confirm_hits
         keep = np.where(confirmed, self.misses <= self.max_misses, self.misses == 0)
         if not keep.all():
-            self.x, self.P = self.x[keep], self.P[keep]
+            self.x, self.pp, self.pv, self.vv, self.rr = (self.x[keep], self.pp[keep], self.pv[keep],
+                                                          self.vv[keep], self.rr[keep])
             self.ids, self.hits, self.misses = self.ids[keep], self.hits[keep], self.misses[keep]
         if len(unmatched_dets):
             k = unmatched_dets
@@ -155,14 +162,13 @@ class Tracker:
             new_x = np.zeros((m, 5))
             new_x[:, :2] = detections.centres[k]
             new_x[:, 4] = detections.radii[k]
-            new_P = np.zeros((m, 5, 5))
-            new_P[:, 0, 0] = new_P[:, 1, 1] = self.measurement[0, 0]
-            new_P[:, 2, 2] = new_P[:, 3, 3] = self.initial_speed ** 2
-            new_P[:, 4, 4] = self.measurement[2, 2]
             new_ids = np.arange(self._next_id, self._next_id + m, dtype=np.int64)
             self._next_id += m
             self.x = np.concatenate([self.x, new_x])
-            self.P = np.concatenate([self.P, new_P])
+            self.pp = np.concatenate([self.pp, np.full((m, 2), m_pos)])
+            self.pv = np.concatenate([self.pv, np.zeros((m, 2))])
+            self.vv = np.concatenate([self.vv, np.full((m, 2), self.initial_speed ** 2)])
+            self.rr = np.concatenate([self.rr, np.full(m, m_rad)])
             self.ids = np.concatenate([self.ids, new_ids])
             self.hits = np.concatenate([self.hits, np.ones(m, np.int64)])
             self.misses = np.concatenate([self.misses, np.zeros(m, np.int64)])
@@ -185,9 +191,9 @@ class Tracker:
         dt = max(0.0, at - self.timestamp)
         confirmed = self.hits >= self.confirm_hits
         centres = self.x[:, :2] + np.where(confirmed[:, None], self.x[:, 2:4] * dt, 0.0)
-        F, Q = self._transition(dt)
-        P = F @ self.P @ F.T + Q if dt > 0 else self.P
-        sd = np.sqrt(np.maximum(P[:, 0, 0], P[:, 1, 1]))
+        q = self.accel_noise ** 2
+        pp = self.pp + 2 * dt * self.pv + dt * dt * self.vv + q * dt ** 4 / 4  # predicted position variance
+        sd = np.sqrt(np.max(pp, axis=1))
         growth = np.minimum(uncertainty_sigma * sd, max_growth)
         radii = np.maximum(self.x[:, 4], 0.5) + np.where(confirmed, growth, 0.0)
         return Detections(centres, radii, track_ids=self.ids.copy())
