@@ -204,6 +204,24 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--camera-colour", action="store_true", help="BGR from the camera instead of the Y plane")
     rec.add_argument("--web", metavar="[HOST:]PORT", help="serve the control panel (127.0.0.1 unless a host is given)")
 
+    tw = commands.add_parser(
+        "twin", help="closed-loop digital twin: backscatter removed and scene light kept, per configuration",
+        description="Run the system in a simulated loop of camera, processing latency and projector "
+                    "(pinhole camera and projector, baseline, projector refreshes) and report how much light "
+                    "the pattern withholds from particles and keeps on the scene, for full light, seed and "
+                    "default detectors with identity mapping, and the default detector with the exact "
+                    "geometric (calibrated) mapping under each strategy (none, dim, flash, coast) with and "
+                    "without prediction.")
+    tw.add_argument("--preset", default="mixed", help="simulator preset (default mixed)")
+    tw.add_argument("--frames", type=int, default=90, help="camera frames per configuration (default 90)")
+    tw.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
+    tw.add_argument("--size", default="800x600", metavar="WxH", help="camera frame size (default 800x600)")
+    tw.add_argument("--baseline-m", type=float, default=0.12, help="camera-projector baseline, m (default 0.12; "
+                    "0 = co-located through a beamsplitter)")
+    tw.add_argument("--latency-ms", type=float, default=5.0, help="processing latency for all runs (default 5)")
+    tw.add_argument("--projector-hz", type=float, default=120.0, help="projector refresh (default 120)")
+    tw.add_argument("--json", action="store_true", help="print {\"runs\": [...]}")
+
     be = commands.add_parser(
         "bench", help="per-stage latency of every detector, side by side (the report's table 1)",
         description="Time every detector's stages on the same simulator frames, interleaved, at 800x600 "
@@ -388,6 +406,41 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _twin(args: argparse.Namespace) -> int:
+    import json
+
+    from .config import parse_size
+    from .simulate import PRESETS
+    from .twin import TwinGeometry, default_runs, simulate_loop
+
+    if args.preset not in PRESETS or args.preset == "seed":
+        allowed = ", ".join(p for p in PRESETS if p != "seed")
+        raise UsageError(f"--preset {args.preset!r}: allowed a realistic preset ({allowed}); the twin needs 3-D particles")
+    if args.frames <= 0:
+        raise UsageError(f"--frames {args.frames}: allowed a positive number")
+    if args.latency_ms < 0:
+        raise UsageError(f"--latency-ms {args.latency_ms}: allowed >= 0")
+    try:
+        size = parse_size(args.size, key="--size")
+        geometry = TwinGeometry(camera_size=size, baseline_m=args.baseline_m, projector_hz=args.projector_hz)
+    except ValueError as exc:
+        raise UsageError(f"twin: {exc}") from None
+    runs = []
+    for run in default_runs(args.baseline_m):
+        result = simulate_loop(run, geometry=geometry, preset=args.preset, frames=args.frames, seed=args.seed,
+                               latency_ms=args.latency_ms)
+        result.pop("series")
+        runs.append(result)
+        if not args.json:
+            print(f"{result['detector'] or 'full light':<10} {result['mapping']:<11} {result['strategy']:<6} "
+                  f"predict {str(result['predict']).lower():<5}  removed {result['backscatter_removed']:.3f}  "
+                  f"kept {result['scene_light_kept']:.3f}")
+    if args.json:
+        print(json.dumps({"preset": args.preset, "frames": args.frames, "baseline_m": args.baseline_m,
+                          "latency_ms": args.latency_ms, "runs": runs}, indent=2))
+    return 0
+
+
 def _record(args: argparse.Namespace) -> int:
     from pathlib import Path
 
@@ -537,6 +590,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _bench(args)
         if args.command == "record":
             return _record(args)
+        if args.command == "twin":
+            return _twin(args)
     except UsageError as exc:
         print(f"antiscatter {args.command}: error: {exc}", file=sys.stderr)
         return 2

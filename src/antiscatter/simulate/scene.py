@@ -300,8 +300,28 @@ class RealisticScene:
         self._truth = None
 
     # -------------------------------------------------------------- rendering
-    def render(self, labels: np.ndarray | None = None) -> np.ndarray:
-        """The current frame, (H, W, 3) BGR uint8; fills ``labels`` ((H, W) uint16) if given."""
+    def particles(self) -> dict[str, np.ndarray]:
+        """Every particle in camera coordinates: ids, X, Y, Z, R (metres; Z along the view)."""
+        s = self._state
+        return {"ids": s["ids"].copy(), "X": s["X"].copy(), "Y": s["Y"].copy(), "Z": s["Z"].copy(),
+                "R": s["R"].copy()}
+
+    def full_light_brightness(self) -> np.ndarray:
+        """(N,) brightness each particle sends back under the full lamp (grey levels, state order)."""
+        c, s = self.config, self._state
+        colours = np.array([getattr(c, k).colour for k in _KIND_FIELDS])[s["kind"]]
+        att = np.array(c.attenuation)[None, :]
+        gain = (c.brightness * s["albedo"] / s["Z"] ** 2)[:, None] * colours * np.exp(-2 * att * s["Z"][:, None])
+        return gain.mean(axis=1)
+
+    def render(self, labels: np.ndarray | None = None, *,
+               light: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+        """The current frame, (H, W, 3) BGR uint8; fills ``labels`` ((H, W) uint16) if given.
+
+        light: (particle factors (N,) in state order, background factors (H, W)), each 0..1,
+            the share of the lamp's light that reached them during the exposure (the digital
+            twin's projector pattern); None = the full lamp.
+        """
         c = self.config
         width, height = self.size
         if self._background is None:
@@ -310,6 +330,8 @@ class RealisticScene:
             if self._background_video is not None:
                 self._next_background_frame()
             frame = self._background.copy()
+            if light is not None:
+                frame *= light[1].astype(np.float32)[..., None]
         best = np.zeros((height, width), np.float32)
         owner = np.zeros((height, width), np.int32)
         s = self._state
@@ -323,6 +345,8 @@ class RealisticScene:
         gain = (c.brightness * s["albedo"] / s["Z"] ** 2)[:, None] * colours * np.exp(-2 * att * s["Z"][:, None])
         cone_at = self._cone[np.clip(np.rint(y), 0, height - 1).astype(int), np.clip(np.rint(x), 0, width - 1).astype(int)]
         gain *= cone_at[:, None]
+        if light is not None:
+            gain *= np.asarray(light[0], dtype=np.float64)[:, None]
         n = len(x)
         peaks = np.zeros(n)
         areas = np.zeros(n)

@@ -1,0 +1,285 @@
+"""The closed-loop digital twin: how much backscatter the light pattern really removes.
+
+A pinhole camera at the origin and a pinhole projector ``baseline_m`` to its
+right (parallel axes; 0 = co-located through a beamsplitter) look at the
+simulator's 3-D particles in front of a background plane.  Time runs in
+projector refreshes (sub-frames).  Each camera frame is rendered with the light
+that was on during its exposure: the patterns the system displayed in those
+sub-frames, averaged, sampled where each particle sits in projector pixels,
+and warped onto the background plane.  The system under test -- the same
+detector, tracker, pattern rendering and mapping as ``antiscatter run`` --
+sees that frame; its pattern is ready ``latency`` after the exposure ends and
+goes on at the next projector refresh.
+
+Figures, integrated over every sub-frame (flashes included):
+
+* backscatter removed = 1 - (light on particles with the system / under full light),
+  each particle weighted by the light it would send back under the full lamp;
+* scene light kept = light on the background with the system / under full light.
+
+Strategies against the closed-loop catch (a particle in its hole goes dark,
+is lost, its hole closes, it is lit again):
+
+* ``none``: the naive loop;
+* ``dim``: holes at ``dim_level`` of full light, so darkened particles stay visible;
+* ``flash``: every camera exposure sits in a uniform flash sub-frame of
+  ``flash_level``; the pattern is shown in the other sub-frames;
+* ``coast``: holes follow tracked particles on their predicted path while dark.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import cv2
+import numpy as np
+
+from .detection import make_detector
+from .detections import Detections
+from .pattern import render_pattern, scale_mapping
+from .simulate import make_scene
+
+__all__ = ["TwinGeometry", "TwinRun", "simulate_loop", "default_runs", "STRATEGIES", "MAPPINGS"]
+
+STRATEGIES = ("none", "dim", "flash", "coast")
+MAPPINGS = ("identity", "calibrated", "range")
+
+
+@dataclass(frozen=True)
+class TwinGeometry:
+    """Camera, projector and timing.
+
+    Defaults follow the report's hardware: the IMX296 (its 1456x1088 frame is
+    scaled to ``camera_size``) behind a 6 mm lens, about 63 degrees across;
+    an Optoma ML550-class projector, 1280x800, throw ratio 1.2, refreshing at
+    120 Hz; the camera at 60 Hz with a 4 ms exposure; the background plane at 3 m.
+    """
+
+    camera_size: tuple[int, int] = (800, 600)
+    hfov_deg: float = 63.0
+    projector_size: tuple[int, int] = (1280, 800)
+    throw_ratio: float = 1.2
+    baseline_m: float = 0.12
+    projector_hz: float = 120.0
+    camera_hz: float = 60.0
+    exposure_s: float = 0.004
+    background_m: float = 3.0
+    near_m: float = 0.3
+    far_m: float = 3.0
+
+    def __post_init__(self) -> None:
+        if self.baseline_m < 0:
+            raise ValueError(f"baseline_m: got {self.baseline_m}, allowed >= 0")
+        ratio = self.projector_hz / self.camera_hz
+        if abs(ratio - round(ratio)) > 1e-6 or ratio < 1:
+            raise ValueError(f"projector_hz: got {self.projector_hz}, allowed a whole multiple of camera_hz "
+                             f"({self.camera_hz})")
+        if not 0 < self.exposure_s <= 1 / self.projector_hz + 1e-12:
+            raise ValueError(f"exposure_s: got {self.exposure_s}, allowed 0 < exposure <= one projector refresh "
+                             f"({1 / self.projector_hz:.4f} s)")
+
+    @property
+    def camera_focal(self) -> float:
+        return (self.camera_size[0] / 2) / math.tan(math.radians(self.hfov_deg) / 2)
+
+    @property
+    def projector_focal(self) -> float:
+        return self.throw_ratio * self.projector_size[0]
+
+    def to_projector(self, X: np.ndarray, Y: np.ndarray, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Projector pixel (u, v) of camera-frame points (metres)."""
+        fp = self.projector_focal
+        cx, cy = (self.projector_size[0] - 1) / 2, (self.projector_size[1] - 1) / 2
+        return fp * (X - self.baseline_m) / Z + cx, fp * Y / Z + cy
+
+    def plane_mapping(self, depth_m: float) -> np.ndarray:
+        """The exact camera-to-projector homography for points at ``depth_m`` (3x3)."""
+        fc, fp = self.camera_focal, self.projector_focal
+        ccx, ccy = (self.camera_size[0] - 1) / 2, (self.camera_size[1] - 1) / 2
+        pcx, pcy = (self.projector_size[0] - 1) / 2, (self.projector_size[1] - 1) / 2
+        s = fp / fc
+        return np.array([[s, 0, pcx - s * ccx - fp * self.baseline_m / depth_m],
+                         [0, s, pcy - s * ccy], [0, 0, 1.0]])
+
+    @property
+    def working_depth_m(self) -> float:
+        """Where a calibration on a flat target would be made: the geometric middle of near..far."""
+        return math.sqrt(self.near_m * self.far_m)
+
+
+@dataclass(frozen=True)
+class TwinRun:
+    """One configuration of the system under test (``detector`` None = no system: full light)."""
+
+    detector: str | None = "contrast"
+    mapping: str = "calibrated"
+    strategy: str = "none"
+    predict: bool = False
+    dim_level: float = 0.2
+    flash_level: float = 0.25
+    margin_px: float = 2.0
+
+    def __post_init__(self) -> None:
+        if self.strategy not in STRATEGIES:
+            raise ValueError(f"strategy: got {self.strategy!r}, allowed {', '.join(STRATEGIES)}")
+        if self.mapping not in MAPPINGS:
+            raise ValueError(f"mapping: got {self.mapping!r}, allowed {', '.join(MAPPINGS)}")
+
+
+def _mean_over_discs(light: np.ndarray, u: np.ndarray, v: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Mean of ``light`` ((H, W) float) over the square of half-side r around each (u, v); 1 outside."""
+    h, w = light.shape
+    integral = cv2.integral(light.astype(np.float64))
+    x0 = np.clip(np.floor(u - r).astype(int), 0, w)
+    x1 = np.clip(np.floor(u + r).astype(int) + 1, 0, w)
+    y0 = np.clip(np.floor(v - r).astype(int), 0, h)
+    y1 = np.clip(np.floor(v + r).astype(int) + 1, 0, h)
+    area = (x1 - x0) * (y1 - y0)
+    total = integral[y1, x1] - integral[y0, x1] - integral[y1, x0] + integral[y0, x0]
+    inside = area > 0
+    out = np.zeros(len(u))  # outside the projector's field nothing lights a particle
+    out[inside] = total[inside] / area[inside]
+    return out
+
+
+def _holes_pattern(holes: Detections, geometry: TwinGeometry, run: TwinRun, camera_mapping: np.ndarray,
+                   buffer: np.ndarray) -> np.ndarray:
+    """The projector pattern for ``holes`` (camera pixels) under the run's mapping; float 0..1."""
+    if run.mapping == "range" and geometry.baseline_m > 0 and len(holes):
+        # unknown depth: each hole covers its particle's whole disparity range near..far
+        near = geometry.plane_mapping(geometry.near_m)
+        far = geometry.plane_mapping(geometry.far_m)
+        buffer.fill(255)
+        s = near[0, 0]
+        for (x, y), r in zip(holes.centres.tolist(), holes.radii.tolist()):
+            a = (near[0, 0] * x + near[0, 2], near[1, 1] * y + near[1, 2])
+            b = (far[0, 0] * x + far[0, 2], far[1, 1] * y + far[1, 2])
+            thickness = max(1, int(round(2 * (r * s + run.margin_px))))
+            cv2.line(buffer, (round(a[0] * 16), round(a[1] * 16)), (round(b[0] * 16), round(b[1] * 16)), 0,
+                     thickness, cv2.LINE_8, 4)
+        pattern = buffer
+    else:
+        pattern = render_pattern(holes, size=geometry.projector_size, mapping=camera_mapping,
+                                 margin=run.margin_px, out=buffer)
+    light = pattern.astype(np.float32) / 255.0
+    if run.strategy == "dim":
+        np.maximum(light, run.dim_level, out=light)
+    return light
+
+
+def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), preset: str = "mixed",
+                  frames: int = 90, seed: int = 1, latency_ms: float = 5.0, scene: Any = None) -> dict[str, Any]:
+    """Run one configuration in the loop; returns its figures (and per-frame series).
+
+    scene: a RealisticScene to use instead of the preset (its size must be ``geometry.camera_size``).
+    """
+    if scene is None:
+        scene = make_scene(preset, rng=np.random.default_rng(seed), size=geometry.camera_size)
+    detector = make_detector(run.detector) if run.detector else None
+    tracker = None
+    if run.strategy == "coast" or run.predict:
+        from .tracking import Tracker
+        tracker = Tracker()
+    pw, ph = geometry.projector_size
+    if run.mapping == "identity":
+        camera_mapping = scale_mapping(geometry.camera_size, geometry.projector_size)
+    else:
+        camera_mapping = geometry.plane_mapping(geometry.working_depth_m)
+    sub_per_frame = int(round(geometry.projector_hz / geometry.camera_hz))
+    sub_s = 1.0 / geometry.projector_hz
+    latency = latency_ms / 1e3
+    full = np.ones((ph, pw), np.float32)
+    flash = np.full((ph, pw), run.flash_level, np.float32)
+    displayed = full  # the lamp is fully on until the first pattern is ready
+    queue: list[tuple[float, np.ndarray]] = []  # (time the pattern goes on, pattern)
+    buffer = np.empty((ph, pw), np.uint8)
+    background_map = geometry.plane_mapping(geometry.background_m)
+    inverse_bg = np.linalg.inv(background_map)
+    lit_area = cv2.warpPerspective(full, inverse_bg, geometry.camera_size, flags=cv2.INTER_NEAREST,
+                                   borderMode=cv2.BORDER_CONSTANT, borderValue=0.0) > 0.5
+    lit_pixels = max(int(lit_area.sum()), 1)
+    on_particles = off_particles = 0.0
+    on_scene = 0.0
+    scene_samples = 0
+    series = []
+    for k in range(frames):
+        if k:
+            scene.step()
+        t0 = k / geometry.camera_hz
+        p = scene.particles()
+        u, v = geometry.to_projector(p["X"], p["Y"], p["Z"])
+        rp = geometry.projector_focal * p["R"] / p["Z"]
+        in_view = ((p["X"] / p["Z"]) * geometry.camera_focal + (geometry.camera_size[0] - 1) / 2)
+        cam_u = in_view
+        cam_v = p["Y"] / p["Z"] * geometry.camera_focal + (geometry.camera_size[1] - 1) / 2
+        visible = (cam_u >= 0) & (cam_u < geometry.camera_size[0]) & (cam_v >= 0) & (cam_v < geometry.camera_size[1])
+        in_field = (u >= 0) & (u < pw) & (v >= 0) & (v < ph) & (p["Z"] > 0)
+        # only what the projector -- the vehicle's lamp -- can light counts
+        weight = scene.full_light_brightness() * visible * in_field
+        exposure_light = None
+        frame_on = np.zeros(len(u))
+        frame_scene = 0.0
+        for j in range(sub_per_frame):
+            ts = t0 + j * sub_s
+            while queue and queue[0][0] <= ts + 1e-12:
+                displayed = queue.pop(0)[1]
+            if detector is None:
+                shown = full
+            elif run.strategy == "flash" and j == 0:
+                shown = flash  # the detection flash, timed to the exposure
+            else:
+                shown = displayed
+            particle_light = _mean_over_discs(shown, u, v, np.maximum(rp, 0.5))
+            frame_on += particle_light
+            # the background plane: the share of the camera's view that is lit
+            bg = cv2.warpPerspective(shown, inverse_bg, geometry.camera_size, flags=cv2.INTER_NEAREST,
+                                     borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+            frame_scene += float(bg[lit_area].sum()) / lit_pixels
+            if j == 0:  # the exposure sits at the start of the frame, inside the first sub-frame
+                exposure_light = (particle_light, bg)
+        frame_on /= sub_per_frame
+        frame_scene /= sub_per_frame
+        on_particles += float((weight * frame_on).sum())
+        off_particles += float(weight.sum())
+        on_scene += frame_scene
+        scene_samples += 1
+        total = float(weight.sum())
+        series.append({"frame": k, "removed": 1 - float((weight * frame_on).sum()) / total if total else float("nan"),
+                       "kept": frame_scene})
+        if detector is None:
+            continue
+        image = scene.render(light=exposure_light)
+        found = detector.detect(image)
+        captured = t0 + geometry.exposure_s
+        ready = captured + latency
+        on_at = math.ceil(ready / sub_s - 1e-9) * sub_s
+        if tracker is not None:
+            tracker.update(found, t0 + geometry.exposure_s / 2)
+            holes = tracker.holes(on_at + sub_s / 2 if run.predict else t0 + geometry.exposure_s / 2)
+        else:
+            holes = found
+        queue.append((on_at, _holes_pattern(holes, geometry, run, camera_mapping, buffer)))
+        queue.sort(key=lambda item: item[0])
+    removed = 1.0 - on_particles / off_particles if off_particles else 0.0
+    return {"detector": "default" if run.detector == "contrast" else run.detector,
+            "calibrated": run.detector is not None and run.mapping != "identity",
+            "mapping": run.mapping if run.detector else "none", "predict": run.predict,
+            "strategy": run.strategy if run.detector else "none", "latency_ms": latency_ms,
+            "baseline_m": geometry.baseline_m, "backscatter_removed": removed,
+            "scene_light_kept": on_scene / scene_samples if scene_samples else 1.0, "frames": frames,
+            "series": series}
+
+
+def default_runs(baseline_m: float) -> list[TwinRun]:
+    """Full light, seed and default detectors with identity mapping, and the default with the calibrated
+    mapping under each strategy, with and without prediction."""
+    runs = [TwinRun(detector=None), TwinRun("seed", "identity"), TwinRun("contrast", "identity"),
+            TwinRun("contrast", "calibrated")]
+    runs += [TwinRun("contrast", "calibrated", strategy) for strategy in ("dim", "flash", "coast")]
+    runs += [TwinRun("contrast", "calibrated", "coast", predict=True),
+             TwinRun("contrast", "calibrated", "flash", predict=True)]
+    if baseline_m > 0:
+        runs.append(TwinRun("contrast", "range", "flash", predict=True))
+    return runs

@@ -1,0 +1,97 @@
+"""The digital twin's physics on hand-made cases, and the twin command."""
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from antiscatter.simulate.scene import KindConfig, RealisticScene, SceneConfig
+from antiscatter.twin import TwinGeometry, TwinRun, _mean_over_discs, simulate_loop
+
+SIZE = (400, 300)
+
+
+def test_a_particle_under_full_white_and_all_black_light():
+    u, v, r = np.array([100.0, 5000.0]), np.array([80.0, 80.0]), np.array([3.0, 3.0])
+    np.testing.assert_allclose(_mean_over_discs(np.ones((200, 300)), u, v, r), [1.0, 0.0])  # 2nd: outside
+    np.testing.assert_allclose(_mean_over_discs(np.zeros((200, 300)), u, v, r), [0.0, 0.0])
+    half = np.ones((200, 300))
+    half[:, 100:] = 0
+    assert _mean_over_discs(half, np.array([100.0]), np.array([80.0]), np.array([3.0]))[0] == pytest.approx(3 / 7)
+
+
+def test_disparity_of_a_known_baseline():
+    g = TwinGeometry(baseline_m=0.12)
+    shift = g.plane_mapping(1.0)[0, 2] - g.plane_mapping(2.0)[0, 2]
+    assert shift == pytest.approx(-g.projector_focal * 0.12 * (1 / 1.0 - 1 / 2.0))  # about -92 px
+    assert abs(shift) > 90
+    # the plane mapping and the point projection agree for a point at that depth
+    X, Y, Z = 0.1, -0.05, 1.7
+    u_c = g.camera_focal * X / Z + (g.camera_size[0] - 1) / 2
+    v_c = g.camera_focal * Y / Z + (g.camera_size[1] - 1) / 2
+    H = g.plane_mapping(Z)
+    up, vp = g.to_projector(np.array([X]), np.array([Y]), np.array([Z]))
+    assert H[0, 0] * u_c + H[0, 2] == pytest.approx(up[0]) and H[1, 1] * v_c + H[1, 2] == pytest.approx(vp[0])
+    assert np.allclose(TwinGeometry(baseline_m=0).plane_mapping(0.5), TwinGeometry(baseline_m=0).plane_mapping(3))
+
+
+def one_static_particle():
+    # drifting slowly: a particle that never moves would rightly be learnt as scene by the detector
+    bright = KindConfig(count=1, size_mm=(4, 4), depth_m=(0.6, 0.6), speed=(0.05, 0.05), direction_deg=0.0,
+                        spread_deg=0.0, albedo=(1, 1))
+    config = SceneConfig(bubbles=bright, background="black", read_noise=1.0, shot_noise=0.0, lamp_cone=False,
+                         defocus=0.0, exposure_s=0.0)
+    scene = RealisticScene(config, size=SIZE, rng=np.random.default_rng(0))
+    scene._state["X"][:] = 0.02  # in front of the lens, inside the projector's narrower field
+    scene._state["Y"][:] = -0.01
+    return scene
+
+
+def loop(strategy, **kw):
+    # a generous margin: the hole covers the whole particle, so the light it gets is exactly the strategy's
+    kw.setdefault("margin_px", 12.0)
+    return simulate_loop(TwinRun("contrast", "calibrated", strategy, **kw),
+                         geometry=TwinGeometry(camera_size=SIZE, baseline_m=0.0), frames=24, latency_ms=5,
+                         scene=one_static_particle())
+
+
+def test_the_naive_loop_flickers_and_removes_about_half():
+    out = loop("none")
+    removed = [f["removed"] for f in out["series"][4:]]
+    assert set(np.round(removed, 2)) <= {0.0, 1.0}  # lit, dark, lit, dark...
+    assert np.mean(np.abs(np.diff(removed))) > 0.9
+    assert out["backscatter_removed"] == pytest.approx(0.5, abs=0.1)
+
+
+def test_a_flash_sub_frame_takes_its_share_of_the_light():
+    out = loop("flash", flash_level=0.25)
+    # in steady state the particle gets the flash (0.25 of one sub-frame in two) and nothing else
+    for f in out["series"][4:]:
+        assert f["removed"] == pytest.approx(1 - 0.25 / 2, abs=1e-6)
+
+
+def test_dim_holes_keep_the_particle_found():
+    out = loop("dim", dim_level=0.2)
+    for f in out["series"][4:]:
+        assert f["removed"] == pytest.approx(0.8, abs=1e-6)
+
+
+def test_full_light_run_is_the_reference(cli):
+    out = simulate_loop(TwinRun(detector=None), geometry=TwinGeometry(camera_size=SIZE), preset="bubbles", frames=5)
+    assert out["backscatter_removed"] == 0 and out["scene_light_kept"] == 1 and not out["calibrated"]
+
+
+def test_twin_command_json(cli):
+    result = cli("twin", "--frames", "6", "--size", "320x240", "--preset", "bubbles", "--json", "--latency-ms", "7")
+    assert result.code == 0, result.err
+    runs = json.loads(result.out)["runs"]
+    required = {"detector", "calibrated", "predict", "strategy", "latency_ms", "baseline_m", "backscatter_removed",
+                "scene_light_kept"}
+    assert all(required <= set(r) for r in runs)
+    assert {r["strategy"] for r in runs} == {"none", "dim", "flash", "coast"}
+    assert any(r["detector"] == "seed" for r in runs) and any(r["detector"] == "default" for r in runs)
+    assert all(r["latency_ms"] == 7 and 0 <= r["backscatter_removed"] <= 1 and 0 <= r["scene_light_kept"] <= 1
+               for r in runs)
+    bad = cli("twin", "--preset", "seed")
+    assert bad.code == 2 and "the twin needs 3-D particles" in bad.err
