@@ -57,7 +57,8 @@ def test_run_on_a_frame_folder_finds_the_drawn_particles(tmp_path, cli):
     for row in rows:
         i = int(row["frame"])
         x, y, r = float(row["x"]), float(row["y"]), float(row["radius"])
-        assert min(np.hypot(x - (dx + 3 * i), y - dy) for dx, dy, _ in discs) < 1.0
+        distance, radius = min((np.hypot(x - (dx + 3 * i), y - dy), dr) for dx, dy, dr in discs)
+        assert distance < 1.0 and radius <= r <= radius + 4  # the hole covers the particle
     pattern = cv2.imread(str(tmp_path / "pat" / "0.png"), cv2.IMREAD_UNCHANGED)
     assert pattern.shape == (800, 1280)
     # default mapping scales 160x120 to 1280x800: particle (30, 40) -> (240, 266.7), black

@@ -1,8 +1,6 @@
 """The digital twin's physics on hand-made cases, and the twin command."""
 
 import json
-from dataclasses import replace
-
 import numpy as np
 import pytest
 

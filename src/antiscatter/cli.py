@@ -336,7 +336,7 @@ def _evaluate(args: argparse.Namespace) -> int:
             title = f"detector {name} on scenario {s.name} ({frames} frames)"
             if args.track:
                 from .evaluate.runs import evaluate_tracking, scenario_truth_frames
-                from .simulate import PRESETS, make_scene
+                from .simulate import make_scene
 
                 fps = make_scene(s.preset, rng=np.random.default_rng(0), size=(8, 8)).fps
                 extra.update(evaluate_tracking(scenario_truth_frames(s.preset, s.size, frames, s.seed, m),

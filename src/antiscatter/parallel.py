@@ -18,7 +18,6 @@ import multiprocessing as mp
 import queue
 import signal
 import sys
-import time
 from multiprocessing import shared_memory
 from typing import Any
 

@@ -545,6 +545,13 @@ def _open_panel(address: str, pipeline: _Pipeline, stop: "_StopFlag", log: TextI
     return _PanelContext(panel)
 
 
+def _timed_read(source: FrameSource) -> tuple[Any, int, int]:
+    """(frame or None, clock before, clock after) of one ``source.read()``."""
+    t0 = time.perf_counter_ns()
+    frame = source.read()
+    return frame, t0, time.perf_counter_ns()
+
+
 def _finished(summary: RunSummary, stop: "_StopFlag", rc: Any) -> bool:
     """True (with the reason recorded) once a signal arrived or the frame limit is reached."""
     if stop:
@@ -560,14 +567,11 @@ def _run_single(pipeline: _Pipeline, source: FrameSource, stop: "_StopFlag", rc:
     """One thread: pace, capture, process, show -- the report's design."""
     summary = pipeline.summary
     pacer = Pacer(rc.fps)
-    clock = time.perf_counter_ns
     while True:
         if _finished(summary, stop, rc):
             return
         pacer.wait()
-        t0 = clock()
-        frame = source.read()
-        t1 = clock()
+        frame, t0, t1 = _timed_read(source)
         if frame is None:
             summary.stop_reason = "source ended"
             return
@@ -592,7 +596,6 @@ def _run_threads(pipeline: _Pipeline, source: FrameSource, stop: "_StopFlag", rc
     captured, processed = LatestSlot(lossless=lossless), LatestSlot(lossless=lossless)
     errors: list[BaseException] = []
     finished = threading.Event()
-    clock = time.perf_counter_ns
 
     def guarded(body: Callable[[], None]) -> Callable[[], None]:
         def target() -> None:
@@ -611,9 +614,7 @@ def _run_threads(pipeline: _Pipeline, source: FrameSource, stop: "_StopFlag", rc
 
     def capture_loop() -> None:
         while not finished.is_set() and not stop:
-            t0 = clock()
-            frame = source.read()
-            t1 = clock()
+            frame, t0, t1 = _timed_read(source)
             if frame is None:
                 summary.stop_reason = summary.stop_reason or "source ended"
                 return
@@ -673,10 +674,7 @@ def _run_processes(pipeline: _Pipeline, source: FrameSource, stop: "_StopFlag", 
     from .parallel import DetectorProcess
 
     summary = pipeline.summary
-    clock = time.perf_counter_ns
-    t0 = clock()
-    first = source.read()
-    t1 = clock()
+    first, t0, t1 = _timed_read(source)
     if first is None:
         summary.stop_reason = "source ended"
         return
@@ -693,9 +691,7 @@ def _run_processes(pipeline: _Pipeline, source: FrameSource, stop: "_StopFlag", 
             if _finished(summary, stop, rc):
                 return
             while not ended and not worker.full and not (rc.frames and submitted >= rc.frames):
-                t0 = clock()
-                frame = source.read()
-                t1 = clock()
+                frame, t0, t1 = _timed_read(source)
                 if frame is None:
                     ended = True
                     break

@@ -30,7 +30,7 @@ is lost, its hole closes, it is lit again):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 from typing import Any
 
 import cv2

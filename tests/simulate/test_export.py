@@ -7,7 +7,6 @@ import cv2
 import numpy as np
 import pytest
 
-from antiscatter.errors import UsageError
 from antiscatter.simulate import PRESETS
 from antiscatter.simulate.catalogue import load_catalogue
 from antiscatter.simulate.export import SimulationRequest, simulate

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .appearance import RADIUS, SIDE, bubble_templates, pyramid, sand_templates, snow_templates
+from .appearance import RADIUS, bubble_templates, pyramid, sand_templates, snow_templates
 from .background import BACKGROUNDS, gradient, load_background, padding, seabed
 from .truth import KINDS, Truth
 
