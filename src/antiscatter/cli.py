@@ -6,6 +6,8 @@ import argparse
 import sys
 from typing import Any, Sequence
 
+import numpy as np
+
 from . import __version__
 from .errors import UsageError
 
@@ -77,6 +79,8 @@ def build_parser() -> argparse.ArgumentParser:
     g = run.add_argument_group("pattern")
     g.add_argument("--projector-size", metavar="WxH", help="projector resolution (default 1280x800)")
     g.add_argument("--margin", type=float, help="pixels added to every hole's radius (default 0)")
+    g.add_argument("--calibration", metavar="FILE", help="a calibration from 'antiscatter calibrate': its "
+                   "homography maps camera to projector pixels and sets the projector size")
     g.add_argument("--mapping", metavar="FILE", help="3x3 camera-to-projector homography, a text file "
                    "of 3 rows of 3 numbers (default: identity scaled to the projector size)")
     g = run.add_argument_group("output and run")
@@ -220,7 +224,29 @@ def build_parser() -> argparse.ArgumentParser:
                     "0 = co-located through a beamsplitter)")
     tw.add_argument("--latency-ms", type=float, default=5.0, help="processing latency for all runs (default 5)")
     tw.add_argument("--projector-hz", type=float, default=120.0, help="projector refresh (default 120)")
+    tw.add_argument("--projector-size", default="1280x800", metavar="WxH", help="projector size (default 1280x800)")
+    tw.add_argument("--calibration", metavar="FILE", help="use this calibration for the calibrated runs (default: "
+                    "the twin's exact geometry); its error against the true geometry is reported")
     tw.add_argument("--json", action="store_true", help="print {\"runs\": [...]}")
+
+    ca = commands.add_parser(
+        "calibrate", help="camera-to-projector calibration with Gray-code stripes on a flat target",
+        description="Project the Gray-code sequence on a flat target, capture it, decode which projector pixel "
+                    "lit each camera pixel and fit the camera-to-projector homography; with the target at two "
+                    "depths, also the baseline and the depth-aware mapping. --twin calibrates the digital twin "
+                    "and reports the error against its true geometry; otherwise the projector output and the "
+                    "camera source are used (you are asked to place the target at each depth).")
+    ca.add_argument("out", help="calibration file to write (JSON), for run/twin --calibration")
+    ca.add_argument("--twin", action="store_true", help="calibrate the digital twin instead of hardware")
+    ca.add_argument("--depths", default="0.5,2.0", help="target distances in metres (default 0.5,2.0)")
+    ca.add_argument("--baseline-m", type=float, default=0.12, help="twin: camera-projector baseline (default 0.12)")
+    ca.add_argument("--size", default="800x600", metavar="WxH", help="camera frame size (default 800x600)")
+    ca.add_argument("--projector-size", default="1280x800", metavar="WxH", help="projector size (default 1280x800)")
+    ca.add_argument("--hfov-deg", type=float, default=63.0, help="camera horizontal field of view (default 63)")
+    ca.add_argument("--source", default="camera", help="hardware: frame source (default camera)")
+    ca.add_argument("-o", "--output", action="append", metavar="NAME", help="hardware: the projector output "
+                    "(default framebuffer)")
+    ca.add_argument("--step", type=int, default=8, help="decode every Nth camera pixel (default 8)")
 
     be = commands.add_parser(
         "bench", help="per-stage latency of every detector, side by side (the report's table 1)",
@@ -253,8 +279,6 @@ def _detector_from(args: argparse.Namespace):
 def _evaluate(args: argparse.Namespace) -> int:
     import json
     from pathlib import Path
-
-    import numpy as np
 
     from .evaluate import Matching, evaluate_csv, evaluate_folder, evaluate_pairs, summarise
     from .evaluate.reference import msrb_pairs, pair_files
@@ -406,6 +430,60 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _calibrate(args: argparse.Namespace) -> int:
+    import math
+
+    from .calibration import HardwareRig, TwinRig, calibrate_planes, mapping_error_px
+    from .config import parse_size
+    from .twin import TwinGeometry
+
+    try:
+        depths = [float(d) for d in args.depths.split(",")]
+        size = parse_size(args.size, key="--size")
+        projector = parse_size(args.projector_size, key="--projector-size")
+    except ValueError as exc:
+        raise UsageError(f"calibrate: {exc}" if "size" in str(exc) else
+                         f"--depths {args.depths!r}: expected distances in metres, e.g. 0.5,2.0") from None
+    if not depths or min(depths) <= 0 or len(set(depths)) != len(depths):
+        raise UsageError(f"--depths {args.depths!r}: allowed distinct positive distances in metres")
+    if args.step < 1:
+        raise UsageError(f"--step {args.step}: allowed >= 1")
+    focal = (size[0] / 2) / math.tan(math.radians(args.hfov_deg) / 2)
+    if args.twin:
+        geometry = TwinGeometry(camera_size=size, projector_size=projector, baseline_m=args.baseline_m,
+                                hfov_deg=args.hfov_deg)
+        captures = {d: TwinRig(geometry, d, rng=np.random.default_rng(i)).capture for i, d in enumerate(depths)}
+        calibration = calibrate_planes(captures, camera_size=size, projector_size=projector,
+                                       camera_focal_px=focal, step=args.step)
+    else:
+        from .outputs import open_output
+        from .sources import open_source
+
+        with open_source(args.source, size=size) as source:
+            outputs = [open_output(o) for o in (args.output or ["framebuffer"])]
+            try:
+                rig = HardwareRig(source, outputs)
+                captures = {}
+                for d in depths:
+                    input(f"place the flat target {d:g} m in front of the camera, then press Enter ")
+                    captures[d] = rig.capture  # captured in calibrate_planes, in depth order
+                calibration = calibrate_planes(captures, camera_size=source.size, projector_size=projector,
+                                               camera_focal_px=focal, step=args.step)
+            finally:
+                for o in outputs:
+                    o.close()
+    calibration.save(args.out)
+    print(f"wrote {args.out}: fit error (median, projector px) "
+          + ", ".join(f"{d:g} m {e:.2f}" for (d, _), e in zip(calibration.planes, calibration.errors_px))
+          + (f"; baseline {calibration.baseline_m:.4f} m" if calibration.baseline_m is not None else ""))
+    if args.twin:
+        for d in sorted(set(depths) | {calibration.working_depth_m}):
+            error = mapping_error_px(calibration.mapping_at(d), geometry.plane_mapping(d), size, projector)
+            print(f"  against the twin's true geometry at {d:.2f} m: mean {error['mean_px']:.2f} px, "
+                  f"max {error['max_px']:.2f} px")
+    return 0
+
+
 def _twin(args: argparse.Namespace) -> int:
     import json
 
@@ -422,13 +500,32 @@ def _twin(args: argparse.Namespace) -> int:
         raise UsageError(f"--latency-ms {args.latency_ms}: allowed >= 0")
     try:
         size = parse_size(args.size, key="--size")
-        geometry = TwinGeometry(camera_size=size, baseline_m=args.baseline_m, projector_hz=args.projector_hz)
+        projector = parse_size(args.projector_size, key="--projector-size")
+        geometry = TwinGeometry(camera_size=size, projector_size=projector, baseline_m=args.baseline_m,
+                                projector_hz=args.projector_hz)
     except ValueError as exc:
         raise UsageError(f"twin: {exc}") from None
+    calibration = None
+    extra = {}
+    if args.calibration:
+        from .calibration import load_calibration, mapping_error_px
+
+        calibration = load_calibration(args.calibration)
+        if calibration.camera_size != geometry.camera_size or calibration.projector_size != geometry.projector_size:
+            raise UsageError(f"{args.calibration}: made for camera {calibration.camera_size} and projector "
+                             f"{calibration.projector_size}, the twin has {geometry.camera_size} and "
+                             f"{geometry.projector_size}")
+        extra["calibration_error"] = mapping_error_px(calibration.homography,
+                                                      geometry.plane_mapping(calibration.working_depth_m),
+                                                      geometry.camera_size, geometry.projector_size)
+        if not args.json:
+            print(f"calibration error at {calibration.working_depth_m:.2f} m: "
+                  f"mean {extra['calibration_error']['mean_px']:.2f}, max {extra['calibration_error']['max_px']:.2f} "
+                  "projector px")
     runs = []
     for run in default_runs(args.baseline_m):
         result = simulate_loop(run, geometry=geometry, preset=args.preset, frames=args.frames, seed=args.seed,
-                               latency_ms=args.latency_ms)
+                               latency_ms=args.latency_ms, calibration=calibration)
         result.pop("series")
         runs.append(result)
         if not args.json:
@@ -437,7 +534,7 @@ def _twin(args: argparse.Namespace) -> int:
                   f"kept {result['scene_light_kept']:.3f}")
     if args.json:
         print(json.dumps({"preset": args.preset, "frames": args.frames, "baseline_m": args.baseline_m,
-                          "latency_ms": args.latency_ms, "runs": runs}, indent=2))
+                          "latency_ms": args.latency_ms, **extra, "runs": runs}, indent=2))
     return 0
 
 
@@ -540,8 +637,16 @@ def _run_config(args: argparse.Namespace):
         except ValueError as exc:
             raise UsageError(str(exc)) from None
         overrides["pattern"].update(width=w, height=h)
+    if args.mapping and args.calibration:
+        raise UsageError("--mapping and --calibration both set the mapping: give one")
     if args.mapping:
         overrides["pattern"]["mapping"] = _read_mapping(args.mapping)
+    if args.calibration:
+        from .calibration import load_calibration
+
+        calibration = load_calibration(args.calibration)
+        overrides["pattern"].update(mapping=calibration.homography.tolist(), width=calibration.projector_size[0],
+                                    height=calibration.projector_size[1])
     base = load_config(args.config, overrides)
     if not args.param:
         return base
@@ -592,6 +697,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _record(args)
         if args.command == "twin":
             return _twin(args)
+        if args.command == "calibrate":
+            return _calibrate(args)
     except UsageError as exc:
         print(f"antiscatter {args.command}: error: {exc}", file=sys.stderr)
         return 2

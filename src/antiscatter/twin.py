@@ -145,12 +145,12 @@ def _mean_over_discs(light: np.ndarray, u: np.ndarray, v: np.ndarray, r: np.ndar
 
 
 def _holes_pattern(holes: Detections, geometry: TwinGeometry, run: TwinRun, camera_mapping: np.ndarray,
-                   buffer: np.ndarray) -> np.ndarray:
+                   buffer: np.ndarray, calibration: Any = None) -> np.ndarray:
     """The projector pattern for ``holes`` (camera pixels) under the run's mapping; float 0..1."""
     if run.mapping == "range" and geometry.baseline_m > 0 and len(holes):
         # unknown depth: each hole covers its particle's whole disparity range near..far
-        near = geometry.plane_mapping(geometry.near_m)
-        far = geometry.plane_mapping(geometry.far_m)
+        source = calibration.mapping_at if calibration is not None else geometry.plane_mapping
+        near, far = source(geometry.near_m), source(geometry.far_m)
         buffer.fill(255)
         s = near[0, 0]
         for (x, y), r in zip(holes.centres.tolist(), holes.radii.tolist()):
@@ -170,10 +170,13 @@ def _holes_pattern(holes: Detections, geometry: TwinGeometry, run: TwinRun, came
 
 
 def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), preset: str = "mixed",
-                  frames: int = 90, seed: int = 1, latency_ms: float = 5.0, scene: Any = None) -> dict[str, Any]:
+                  frames: int = 90, seed: int = 1, latency_ms: float = 5.0, scene: Any = None,
+                  calibration: Any = None) -> dict[str, Any]:
     """Run one configuration in the loop; returns its figures (and per-frame series).
 
     scene: a RealisticScene to use instead of the preset (its size must be ``geometry.camera_size``).
+    calibration: a :class:`~antiscatter.calibration.Calibration` for the ``calibrated`` and
+        ``range`` mappings; None = the twin's exact geometry.
     """
     if scene is None:
         scene = make_scene(preset, rng=np.random.default_rng(seed), size=geometry.camera_size)
@@ -185,6 +188,8 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
     pw, ph = geometry.projector_size
     if run.mapping == "identity":
         camera_mapping = scale_mapping(geometry.camera_size, geometry.projector_size)
+    elif calibration is not None:
+        camera_mapping = calibration.homography
     else:
         camera_mapping = geometry.plane_mapping(geometry.working_depth_m)
     sub_per_frame = int(round(geometry.projector_hz / geometry.camera_hz))
@@ -260,7 +265,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
             holes = tracker.holes(on_at + sub_s / 2 if run.predict else t0 + geometry.exposure_s / 2)
         else:
             holes = found
-        queue.append((on_at, _holes_pattern(holes, geometry, run, camera_mapping, buffer)))
+        queue.append((on_at, _holes_pattern(holes, geometry, run, camera_mapping, buffer, calibration)))
         queue.sort(key=lambda item: item[0])
     removed = 1.0 - on_particles / off_particles if off_particles else 0.0
     return {"detector": "default" if run.detector == "contrast" else run.detector,
