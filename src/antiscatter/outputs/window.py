@@ -45,7 +45,7 @@ class WindowOutput(LightOutput):
                 cv2.namedWindow(title, cv2.WINDOW_NORMAL)
         except cv2.error:
             raise UsageError("output 'window' needs OpenCV with GUI support "
-                             "(pip install opencv-python instead of opencv-python-headless)") from None
+                             "(pip install opencv-contrib-python instead of opencv-contrib-python-headless)") from None
 
     def show(self, pattern: np.ndarray, frame: Frame | None = None,
              detections: Detections | None = None) -> None:
