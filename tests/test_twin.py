@@ -93,3 +93,13 @@ def test_twin_command_json(cli):
                for r in runs)
     bad = cli("twin", "--preset", "seed")
     assert bad.code == 2 and "the twin needs 3-D particles" in bad.err
+
+
+def test_curves_plot(tmp_path):
+    import cv2
+    from antiscatter.twin import plot_curves
+    curves = plot_curves(str(tmp_path / "t.png"), geometry=TwinGeometry(camera_size=(200, 150)), preset="bubbles",
+                         frames=3, latencies_ms=(0.0, 20.0), baselines_m=(0.0, 0.12))
+    assert set(curves["by_latency"]) == {"none", "coast+predict", "flash+predict"}
+    assert all(len(v) == 2 for v in curves["by_baseline"].values())
+    assert cv2.imread(str(tmp_path / "t.png")) is not None

@@ -225,6 +225,8 @@ def build_parser() -> argparse.ArgumentParser:
     tw.add_argument("--latency-ms", type=float, default=5.0, help="processing latency for all runs (default 5)")
     tw.add_argument("--projector-hz", type=float, default=120.0, help="projector refresh (default 120)")
     tw.add_argument("--projector-size", default="1280x800", metavar="WxH", help="projector size (default 1280x800)")
+    tw.add_argument("--plot", metavar="FILE.png", help="also draw backscatter removed and scene light kept "
+                    "against latency and against baseline")
     tw.add_argument("--calibration", metavar="FILE", help="use this calibration for the calibrated runs (default: "
                     "the twin's exact geometry); its error against the true geometry is reported")
     tw.add_argument("--json", action="store_true", help="print {\"runs\": [...]}")
@@ -532,6 +534,13 @@ def _twin(args: argparse.Namespace) -> int:
             print(f"{result['detector'] or 'full light':<10} {result['mapping']:<11} {result['strategy']:<6} "
                   f"predict {str(result['predict']).lower():<5}  removed {result['backscatter_removed']:.3f}  "
                   f"kept {result['scene_light_kept']:.3f}")
+    if args.plot:
+        from .twin import plot_curves
+
+        extra["curves"] = plot_curves(args.plot, geometry=geometry, preset=args.preset, frames=args.frames,
+                                      seed=args.seed)
+        if not args.json:
+            print(f"wrote {args.plot}")
     if args.json:
         print(json.dumps({"preset": args.preset, "frames": args.frames, "baseline_m": args.baseline_m,
                           "latency_ms": args.latency_ms, **extra, "runs": runs}, indent=2))

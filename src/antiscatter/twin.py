@@ -288,3 +288,45 @@ def default_runs(baseline_m: float) -> list[TwinRun]:
     if baseline_m > 0:
         runs.append(TwinRun("contrast", "range", "flash", predict=True))
     return runs
+
+
+def plot_curves(path: str, *, geometry: TwinGeometry, preset: str = "mixed", frames: int = 60, seed: int = 1,
+                latencies_ms: tuple[float, ...] = (0.0, 5.0, 10.0, 20.0, 40.0),
+                baselines_m: tuple[float, ...] = (0.0, 0.03, 0.06, 0.12, 0.2)) -> dict[str, Any]:
+    """Backscatter removed and scene light kept against latency (at the geometry's baseline) and against
+    baseline (at 5 ms), for the default detector with the calibrated mapping; written as a PNG."""
+    from dataclasses import replace as _replace
+
+    from .bench import _pyplot
+
+    runs = {"none": TwinRun("contrast", "calibrated"), "coast+predict": TwinRun("contrast", "calibrated", "coast", True),
+            "flash+predict": TwinRun("contrast", "calibrated", "flash", True)}
+    curves: dict[str, Any] = {"latency_ms": list(latencies_ms), "baseline_m": list(baselines_m), "by_latency": {},
+                              "by_baseline": {}}
+    for name, run in runs.items():
+        curves["by_latency"][name] = [simulate_loop(run, geometry=geometry, preset=preset, frames=frames, seed=seed,
+                                                    latency_ms=lat) for lat in latencies_ms]
+        curves["by_baseline"][name] = [simulate_loop(run, geometry=_replace(geometry, baseline_m=b), preset=preset,
+                                                     frames=frames, seed=seed, latency_ms=5.0) for b in baselines_m]
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
+    for ax, key, xs, label in ((axes[0], "by_latency", latencies_ms, "processing latency (ms)"),
+                               (axes[1], "by_baseline", baselines_m, "camera-projector baseline (m)")):
+        for name, results in curves[key].items():
+            ax.plot(xs, [r["backscatter_removed"] for r in results], "o-", label=f"{name}: removed")
+            ax.plot(xs, [r["scene_light_kept"] for r in results], "s--", label=f"{name}: kept")
+        ax.set_xlabel(label)
+        ax.set_ylim(0, 1.02)
+        ax.grid(alpha=0.3)
+    axes[0].set_title(f"against latency (baseline {geometry.baseline_m:g} m)")
+    axes[1].set_title("against baseline (latency 5 ms)")
+    axes[1].legend(fontsize=7, loc="lower left")
+    fig.suptitle(f"antiscatter twin: {preset}, {frames} frames, default detector, calibrated mapping")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    for key in ("by_latency", "by_baseline"):
+        for results in curves[key].values():
+            for r in results:
+                r.pop("series", None)
+    return curves
