@@ -59,14 +59,15 @@ def test_panel_in_a_real_browser(tmp_path, browser):
         first = wait.until(lambda d: d.execute_script(IMAGE_HASH, "input"))
         wait.until(lambda d: d.execute_script(IMAGE_HASH, "input") not in (None, first))
         wait.until(lambda d: d.execute_script(IMAGE_HASH, "pattern") is not None)
-        # the figures change
-        frames = lambda d: int(d.find_element(By.ID, "stat-frames").text)  # noqa: E731
-        before = wait.until(frames)
-        wait.until(lambda d: frames(d) > before)
+        # the figures change (read in one script call: the table is redrawn twice a second)
+        stat = lambda d, key: d.execute_script(  # noqa: E731
+            "const e = document.getElementById('stat-' + arguments[0]); return e ? e.textContent : null;", key)
+        before = int(wait.until(lambda d: stat(d, "frames")))
+        wait.until(lambda d: int(stat(d, "frames") or 0) > before)
         # Record start, then stop: a valid file
         browser.find_element(By.ID, "record").click()
         wait.until(lambda d: d.find_element(By.ID, "status").text == "recording")
-        wait.until(lambda d: d.find_element(By.ID, "stat-recording").text == "rec.mkv")
+        wait.until(lambda d: stat(d, "recording") == "rec.mkv")
         time.sleep(1.0)
         browser.find_element(By.ID, "record").click()
         wait.until(lambda d: d.find_element(By.ID, "status").text == "recording stopped")
