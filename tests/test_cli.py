@@ -208,7 +208,11 @@ def test_signal_stops_cleanly_with_complete_files(tmp_path, signum, code, mode):
     det = (tmp_path / "d.csv").read_text()
     assert det.endswith("\n")
     assert _processes_in(tmp_path) == []  # no orphaned worker process (workers share the cwd)
-    assert _shm() == shm_before  # no shared-memory segment left behind
+    leftover = _shm() - shm_before
+    if leftover:  # another process on the machine may hold one for a moment: look again
+        time.sleep(2)
+        leftover &= _shm()
+    assert not leftover  # no shared-memory segment left behind
 
 
 def _processes_in(folder):
