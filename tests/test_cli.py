@@ -232,3 +232,19 @@ def _processes_in(folder):
 def _shm():
     import os
     return set(os.listdir("/dev/shm")) if os.path.isdir("/dev/shm") else set()
+
+
+@pytest.mark.parametrize("args", [
+    ["calibrate", "{missing}/c.json", "--twin"],
+    ["evaluate", "--scenario", "bubbles", "--frames", "1", "--csv", "{missing}/f.csv"],
+    ["evaluate", "--scenario", "bubbles", "--frames", "1", "--plot", "{missing}/p.png"],
+    ["bench", "--frames", "1", "--sizes", "64x48", "--plot", "{missing}/b.png"],
+    ["twin", "--frames", "1", "--size", "200x150", "--plot", "{missing}/t.png"],
+    ["simulate", "{tmp}/sim", "--frames", "1", "--video", "{missing}/v.mkv"],
+])
+def test_output_in_a_missing_folder_is_refused_before_any_work(tmp_path, cli, args):
+    args = [a.format(missing=tmp_path / "missing", tmp=tmp_path) for a in args]
+    result = cli(*args)
+    assert result.code == 2
+    assert len(result.err.strip().splitlines()) == 1 and "does not exist" in result.err
+    assert not (tmp_path / "missing").exists() and not (tmp_path / "sim").exists()

@@ -9,7 +9,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from . import __version__
-from .errors import UsageError
+from .errors import UsageError, check_output_path
 
 __all__ = ["main", "build_parser"]
 
@@ -294,6 +294,9 @@ def _evaluate(args: argparse.Namespace) -> int:
                          "--clean, --scenario NAME, or --catalogue")
     if args.frames is not None and args.frames <= 0:
         raise UsageError(f"--frames {args.frames}: allowed a positive number")
+    for flag, value in (("--csv", args.csv), ("--plot", args.plot)):
+        if value:
+            check_output_path(value, flag)
     m = Matching(min_gate=args.min_gate, gate_scale=args.gate_scale, min_visibility=args.min_visibility,
                  min_snr=args.min_snr, margin=args.margin)
     title = ""
@@ -407,6 +410,8 @@ def _bench(args: argparse.Namespace) -> int:
         raise UsageError(f"--frames {args.frames}: allowed a positive number")
     if args.threads < 1:
         raise UsageError(f"--threads {args.threads}: allowed >= 1")
+    if args.plot:
+        check_output_path(args.plot, "--plot")
     names = [n.strip() for n in args.detectors.split(",")] if args.detectors else list(DETECTORS)
     for n in names:
         if n not in DETECTORS:
@@ -450,6 +455,7 @@ def _calibrate(args: argparse.Namespace) -> int:
         raise UsageError(f"--depths {args.depths!r}: allowed distinct positive distances in metres")
     if args.step < 1:
         raise UsageError(f"--step {args.step}: allowed >= 1")
+    check_output_path(args.out, "calibrate")
     focal = (size[0] / 2) / math.tan(math.radians(args.hfov_deg) / 2)
     if args.twin:
         geometry = TwinGeometry(camera_size=size, projector_size=projector, baseline_m=args.baseline_m,
@@ -500,6 +506,8 @@ def _twin(args: argparse.Namespace) -> int:
         raise UsageError(f"--frames {args.frames}: allowed a positive number")
     if args.latency_ms < 0:
         raise UsageError(f"--latency-ms {args.latency_ms}: allowed >= 0")
+    if args.plot:
+        check_output_path(args.plot, "--plot")
     try:
         size = parse_size(args.size, key="--size")
         projector = parse_size(args.projector_size, key="--projector-size")

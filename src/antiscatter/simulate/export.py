@@ -20,7 +20,7 @@ from typing import TextIO
 import cv2
 import numpy as np
 
-from ..errors import UsageError
+from ..errors import UsageError, check_output_path
 from ..sources.folder import list_frames
 from . import make_scene
 from .truth import TRUTH_COLUMNS
@@ -82,6 +82,7 @@ def _check(request: SimulationRequest) -> None:
     if out.exists() and not out.is_dir():
         raise UsageError(f"{out}: exists and is not a folder")
     if request.video is not None:
+        check_output_path(request.video, "--video")
         if request.video.suffix.lower() != ".mkv":
             raise UsageError(f"--video {request.video}: allowed a .mkv file (FFV1 in Matroska)")
         if request.video.exists() and not request.overwrite:
