@@ -82,7 +82,8 @@ def _check(request: SimulationRequest) -> None:
     if out.exists() and not out.is_dir():
         raise UsageError(f"{out}: exists and is not a folder")
     if request.video is not None:
-        check_output_path(request.video, "--video")
+        if request.video.parent.resolve() != out.resolve():  # OUT itself is created by the run
+            check_output_path(request.video, "--video")
         if request.video.suffix.lower() != ".mkv":
             raise UsageError(f"--video {request.video}: allowed a .mkv file (FFV1 in Matroska)")
         if request.video.exists() and not request.overwrite:
