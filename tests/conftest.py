@@ -80,3 +80,44 @@ def cli():
 @pytest.fixture
 def python() -> str:
     return sys.executable
+
+
+class PanelProcess:
+    """``antiscatter ARGS --web 127.0.0.1:0`` in a subprocess; ``url`` is its panel, read from stderr.
+
+    A context manager: the process is killed on exit if it is still running.
+    """
+
+    def __init__(self, args: list[str], cwd) -> None:
+        import subprocess
+
+        self.proc = subprocess.Popen([sys.executable, "-m", "antiscatter", *args, "--web", "127.0.0.1:0"], cwd=cwd,
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        self.url = None
+        while self.url is None:
+            line = self.proc.stderr.readline()
+            assert line, f"antiscatter {args[0]} ended before serving the panel"
+            if line.startswith("control panel: "):
+                self.url = line.split(": ", 1)[1].strip()
+
+    def post(self, action: str) -> str:
+        """Press a button; returns the panel's message."""
+        import json
+        import urllib.request
+
+        request = urllib.request.Request(self.url + "action/" + action, method="POST")
+        return json.loads(urllib.request.urlopen(request, timeout=5).read())["message"]
+
+    def stats(self) -> dict:
+        import json
+        import urllib.request
+
+        return json.loads(urllib.request.urlopen(self.url + "stats", timeout=5).read())
+
+    def __enter__(self) -> "PanelProcess":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.communicate()

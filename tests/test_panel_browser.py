@@ -1,8 +1,6 @@
 """The control panel end to end in a real headless Chromium (Debian's chromium + chromedriver, via Selenium)."""
 
 import shutil
-import subprocess
-import sys
 import time
 
 import av
@@ -12,6 +10,8 @@ from selenium.webdriver.chrome.options import Options
 from selenium.webdriver.chrome.service import Service
 from selenium.webdriver.common.by import By
 from selenium.webdriver.support.ui import WebDriverWait
+
+from conftest import PanelProcess
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 CHROMEDRIVER = shutil.which("chromedriver") or "/usr/bin/chromedriver"
@@ -42,17 +42,9 @@ return h;
 
 
 def test_panel_in_a_real_browser(tmp_path, browser):
-    proc = subprocess.Popen([sys.executable, "-m", "antiscatter", "run", "--output", "none", "--fps", "30",
-                             "--web", "127.0.0.1:0", "--record-to", "rec.mkv"],
-                            cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        url = None
-        while url is None:
-            line = proc.stderr.readline()
-            assert line, "run ended before serving the panel"
-            if line.startswith("control panel: "):
-                url = line.split(": ", 1)[1].strip()
-        browser.get(url)
+    with PanelProcess(["run", "--output", "none", "--fps", "30", "--record-to", "rec.mkv"], tmp_path) as panel:
+        proc = panel.proc
+        browser.get(panel.url)
         wait = WebDriverWait(browser, 20)
         assert "antiscatter" in browser.title
         # the live image arrives and keeps changing
@@ -74,9 +66,6 @@ def test_panel_in_a_real_browser(tmp_path, browser):
         # Stop ends the run
         browser.find_element(By.ID, "stop").click()
         out, err = proc.communicate(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
     assert proc.returncode == 0, err
     assert "stopped by panel" in out
     with av.open(str(tmp_path / "rec.mkv")) as container:

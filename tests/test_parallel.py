@@ -19,7 +19,6 @@ def shm_names():
 def test_ring_round_trip_is_byte_exact_across_processes():
     rng = np.random.default_rng(0)
     frames = [rng.integers(0, 256, (48, 64, 3), dtype=np.uint8) for _ in range(6)]
-    before = shm_names()
     ring = FrameRing((48, 64, 3), np.uint8, slots=3)
     try:
         other = FrameRing((48, 64, 3), np.uint8, slots=3, name=ring.name)  # as the worker opens it

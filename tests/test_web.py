@@ -3,10 +3,7 @@
 import http.client
 import json
 import socket
-import subprocess
-import sys
 import time
-import urllib.request
 
 import numpy as np
 import pytest
@@ -14,6 +11,8 @@ import pytest
 from antiscatter.detections import Detections
 from antiscatter.errors import UsageError
 from antiscatter.web import ControlPanel, parse_address
+
+from conftest import PanelProcess
 
 
 @pytest.fixture
@@ -78,32 +77,17 @@ def test_malformed_request_gets_400(panel):
 
 
 def test_run_with_panel_records_and_stops(tmp_path):
-    proc = subprocess.Popen([sys.executable, "-m", "antiscatter", "run", "--output", "none", "--fps", "30",
-                             "--web", "127.0.0.1:0", "--record-to", "rec.mkv"],
-                            cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        url = None
-        deadline = time.monotonic() + 30
-        while url is None and time.monotonic() < deadline:
-            line = proc.stderr.readline()
-            if line.startswith("control panel: "):
-                url = line.split(": ", 1)[1].strip()
-        assert url
-        post = lambda name: urllib.request.urlopen(urllib.request.Request(url + "action/" + name, method="POST"),
-                                                   timeout=5).read()
+    with PanelProcess(["run", "--output", "none", "--fps", "30", "--record-to", "rec.mkv"], tmp_path) as panel:
         time.sleep(1.0)
-        assert json.loads(post("record"))["message"] == "recording"
+        assert panel.post("record") == "recording"
         time.sleep(1.0)
-        first = json.loads(urllib.request.urlopen(url + "stats", timeout=5).read())
+        first = panel.stats()
         time.sleep(0.7)
-        second = json.loads(urllib.request.urlopen(url + "stats", timeout=5).read())
+        second = panel.stats()
         assert second["frames"] > first["frames"] and second["recording"] == "rec.mkv"
-        post("stop")
-        out, err = proc.communicate(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == 0, err
+        panel.post("stop")
+        out, err = panel.proc.communicate(timeout=30)
+    assert panel.proc.returncode == 0, err
     assert "stopped by panel" in out
     import av
     with av.open(str(tmp_path / "rec.mkv")) as container:

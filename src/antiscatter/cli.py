@@ -266,15 +266,24 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _size_arg(text: str, flag: str) -> tuple[int, int]:
+    """``WxH`` from a flag, or a one-line UsageError naming the flag."""
+    from .config import parse_size
+
+    try:
+        return parse_size(text, key=flag)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+
+
 def _detector_from(args: argparse.Namespace):
     from .config import build_section, parse_param
-    from .detection import DETECTORS, make_detector
+    from .detection import detector_entry, make_detector
 
     name = args.detector or DEFAULT_DETECTOR
-    if name not in DETECTORS:
-        raise UsageError(f"unknown detector {name!r}; allowed: {', '.join(sorted(DETECTORS))}")
-    values = dict(parse_param(p, DETECTORS[name].params, detector=name) for p in args.param)
-    params = build_section(DETECTORS[name].params, values, prefix=f"detector.{name}")
+    entry = detector_entry(name)
+    values = dict(parse_param(p, entry.params, detector=name) for p in args.param)
+    params = build_section(entry.params, values, prefix=f"detector.{name}")
     return name, params, make_detector(name, params)
 
 
@@ -282,7 +291,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     import json
     from pathlib import Path
 
-    from .evaluate import Matching, evaluate_csv, evaluate_folder, evaluate_pairs, summarise
+    from .evaluate import Matching, evaluate_folder, evaluate_pairs, summarise
     from .evaluate.reference import msrb_pairs, pair_files
     from .evaluate.report import format_summary, plot_evaluation, scoreboard, sweep_detector, write_frame_csv
     from .simulate.catalogue import load_catalogue
@@ -330,12 +339,12 @@ def _evaluate(args: argparse.Namespace) -> int:
     if args.truth or args.detections:
         if not (args.truth and args.detections):
             raise UsageError("--truth and --detections go together")
-        from .evaluate.runs import read_csv_pair
+        from .evaluate.runs import read_csv_pair, score_csv_pair
         from .evaluate.tracking import tracking_summary
 
-        scores = evaluate_csv(Path(args.truth), Path(args.detections), m)
+        truth, found, frames_range = read_csv_pair(Path(args.truth), Path(args.detections), m)  # read once
+        scores = score_csv_pair(truth, found, frames_range, m)
         title = f"{args.detections} against {args.truth}"
-        truth, found, frames_range = read_csv_pair(Path(args.truth), Path(args.detections), m)
         has_ids = any((v[2] >= 0).any() for v in found.values())
         if has_ids:
             if any(t.ids is None or (t.ids < 0).any() for t in truth.values()):
@@ -403,8 +412,7 @@ def _bench(args: argparse.Namespace) -> int:
     import json
 
     from .bench import bench, format_bench, plot_bench
-    from .config import parse_size
-    from .detection import DETECTORS
+    from .detection import DETECTORS, detector_entry
 
     if args.frames <= 0:
         raise UsageError(f"--frames {args.frames}: allowed a positive number")
@@ -414,14 +422,10 @@ def _bench(args: argparse.Namespace) -> int:
         check_output_path(args.plot, "--plot")
     names = [n.strip() for n in args.detectors.split(",")] if args.detectors else list(DETECTORS)
     for n in names:
-        if n not in DETECTORS:
-            raise UsageError(f"unknown detector {n!r}; allowed: {', '.join(sorted(DETECTORS))}")
+        detector_entry(n)
     sizes = []
     for text in args.sizes.split(","):
-        try:
-            w, h = parse_size(text.strip(), key="--sizes")
-        except ValueError as exc:
-            raise UsageError(str(exc)) from None
+        w, h = _size_arg(text.strip(), "--sizes")
         sizes.append((w, h, "fullres" if w * h > 800 * 600 else "mixed"))
     if args.modes:
         from .bench import bench_modes, format_modes
@@ -558,15 +562,11 @@ def _twin(args: argparse.Namespace) -> int:
 def _record(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from .config import parse_size
     from .record.command import RecordRequest, record
 
     size = None
     if args.size:
-        try:
-            size = parse_size(args.size, key="--size")
-        except ValueError as exc:
-            raise UsageError(str(exc)) from None
+        size = _size_arg(args.size, "--size")
     for name, value in (("--fps", args.fps), ("--seconds", args.seconds), ("--frames", args.frames),
                         ("--buffer-mb", args.buffer_mb)):
         if value < 0:
@@ -587,7 +587,6 @@ def _record(args: argparse.Namespace) -> int:
 def _simulate(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from .config import parse_size
     from .simulate import PRESETS
     from .simulate.catalogue import load_catalogue
     from .simulate.export import SimulationRequest, simulate
@@ -615,10 +614,7 @@ def _simulate(args: argparse.Namespace) -> int:
     frames = args.frames if args.frames is not None else frames
     seed = args.seed if args.seed is not None else seed
     if args.size:
-        try:
-            size = parse_size(args.size, key="--size")
-        except ValueError as exc:
-            raise UsageError(str(exc)) from None
+        size = _size_arg(args.size, "--size")
     request = SimulationRequest(out=Path(args.out), preset=preset, frames=frames, seed=seed, size=size,
                                 background=args.background, masks=args.masks,
                                 video=Path(args.video) if args.video else None, overwrite=args.overwrite)
@@ -632,7 +628,7 @@ def _simulate(args: argparse.Namespace) -> int:
 
 
 def _run_config(args: argparse.Namespace):
-    from .config import load_config, parse_param, parse_size
+    from .config import load_config, parse_param
     from .detection import DETECTORS
 
     overrides: dict[str, dict[str, Any]] = {
@@ -649,10 +645,7 @@ def _run_config(args: argparse.Namespace):
                 "web": args.web, "record_to": args.record_to},
     }
     if args.projector_size:
-        try:
-            w, h = parse_size(args.projector_size, key="--projector-size")
-        except ValueError as exc:
-            raise UsageError(str(exc)) from None
+        w, h = _size_arg(args.projector_size, "--projector-size")
         overrides["pattern"].update(width=w, height=h)
     if args.mapping and args.calibration:
         raise UsageError("--mapping and --calibration both set the mapping: give one")

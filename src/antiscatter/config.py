@@ -293,7 +293,7 @@ def load_config(path: str | Path | None = None, overrides: dict[str, dict[str, A
     overrides: {"run": {"frames": 300}, ...} from command-line flags (None values ignored).
     detector_overrides: parameters of the chosen detector, from ``--param KEY=VALUE``.
     """
-    from .detection import DETECTORS
+    from .detection import DETECTORS, detector_entry
 
     data: dict[str, Any] = {}
     where = "config"
@@ -327,8 +327,7 @@ def load_config(path: str | Path | None = None, overrides: dict[str, dict[str, A
         except UsageError as exc:
             raise UsageError(f"{where}: {exc}" if path is not None else str(exc)) from None
     detector_name = sections["detector"].name
-    if detector_name not in DETECTORS:
-        raise UsageError(f"unknown detector {detector_name!r}; allowed: {', '.join(sorted(DETECTORS))}")
+    detector_entry(detector_name)
     for other in nested:
         if other not in DETECTORS:
             raise UsageError(f"{where}: unknown section [detector.{other}]; allowed: "

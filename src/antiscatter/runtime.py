@@ -7,6 +7,7 @@ report's columns, the detections CSV, and prints the report's table 1 summary.
 
 from __future__ import annotations
 
+import array
 import csv
 import os
 import signal
@@ -29,7 +30,7 @@ from .pattern import render_pattern, scale_mapping
 from .sources import FrameSource, open_source, parse_crop
 from .stats import RunningStats
 
-__all__ = ["REPORT_COLUMNS", "metrics_columns", "time_stages", "Pacer", "RunSummary", "run", "set_niceness",
+__all__ = ["REPORT_COLUMNS", "metrics_columns", "time_stages", "Pacer", "RunSummary", "run", "set_niceness", "StopFlag",
            "LatestSlot", "apply_process_controls", "MODES"]
 
 #: Execution modes of ``antiscatter run``.
@@ -172,8 +173,9 @@ class RunSummary:
     wall_s: float = 0.0
     dropped: int = 0
     period_ns: int = 0
-    output_times: list[int] = field(default_factory=list)
-    latencies_ns: list[int] = field(default_factory=list)
+    # per-frame times as compact int64 arrays (8 bytes a frame), for percentiles and pacing
+    output_times: array.array = field(default_factory=lambda: array.array("q"))
+    latencies_ns: array.array = field(default_factory=lambda: array.array("q"))
 
     def pacing(self) -> dict[str, float]:
         """Achieved output rate and frame-interval error (against the --fps period, or the mean interval)."""
@@ -199,8 +201,8 @@ class RunSummary:
         return "\n".join(lines)
 
 
-class _StopFlag:
-    """Set by SIGINT/SIGTERM; a second Ctrl-C raises KeyboardInterrupt at once."""
+class StopFlag:
+    """Set by SIGINT/SIGTERM (or the panel's Stop, via ``reason``); a second Ctrl-C raises KeyboardInterrupt at once."""
 
     def __init__(self) -> None:
         self.reason = ""
@@ -214,7 +216,7 @@ class _StopFlag:
             raise KeyboardInterrupt
         self.reason = signal.Signals(signum).name
 
-    def __enter__(self) -> "_StopFlag":
+    def __enter__(self) -> "StopFlag":
         for signum in (signal.SIGINT, signal.SIGTERM):
             try:
                 self._previous[signum] = signal.signal(signum, self._handle)
@@ -497,7 +499,7 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
         pipeline = _Pipeline(config, detector, tracker, source, outputs, metrics_writer, detections_writer,
                              columns, summary, buffers=1 if rc.mode == "single" else 3)
         stack.callback(pipeline.stop_recording, wait=True)  # a recording is finished however the run ends
-        stop = stack.enter_context(_StopFlag())
+        stop = stack.enter_context(StopFlag())
         if rc.web:
             pipeline.panel = stack.enter_context(_open_panel(rc.web, pipeline, stop, log))
         started = time.perf_counter_ns()
@@ -513,18 +515,7 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
     return summary
 
 
-class _PanelContext:
-    def __init__(self, panel: Any) -> None:
-        self.panel = panel
-
-    def __enter__(self) -> Any:
-        return self.panel
-
-    def __exit__(self, *exc: object) -> None:
-        self.panel.close()
-
-
-def _open_panel(address: str, pipeline: _Pipeline, stop: "_StopFlag", log: TextIO) -> _PanelContext:
+def _open_panel(address: str, pipeline: _Pipeline, stop: "StopFlag", log: TextIO) -> Any:
     """The web panel with the report's three keys as buttons (flags the loop reads)."""
     from .web import ControlPanel
 
@@ -542,7 +533,7 @@ def _open_panel(address: str, pipeline: _Pipeline, stop: "_StopFlag", log: TextI
 
     panel = ControlPanel(address, title="run", actions={"light": light, "record": record, "stop": finish})
     print(f"control panel: {panel.url}", file=log)
-    return _PanelContext(panel)
+    return panel
 
 
 def _timed_read(source: FrameSource) -> tuple[Any, int, int]:
@@ -552,7 +543,7 @@ def _timed_read(source: FrameSource) -> tuple[Any, int, int]:
     return frame, t0, time.perf_counter_ns()
 
 
-def _finished(summary: RunSummary, stop: "_StopFlag", rc: Any) -> bool:
+def _finished(summary: RunSummary, stop: "StopFlag", rc: Any) -> bool:
     """True (with the reason recorded) once a signal arrived or the frame limit is reached."""
     if stop:
         summary.stop_reason = f"stopped by {stop.reason}"
@@ -563,7 +554,7 @@ def _finished(summary: RunSummary, stop: "_StopFlag", rc: Any) -> bool:
     return False
 
 
-def _run_single(pipeline: _Pipeline, source: FrameSource, stop: "_StopFlag", rc: Any) -> None:
+def _run_single(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: Any) -> None:
     """One thread: pace, capture, process, show -- the report's design."""
     summary = pipeline.summary
     pacer = Pacer(rc.fps)
@@ -580,7 +571,7 @@ def _run_single(pipeline: _Pipeline, source: FrameSource, stop: "_StopFlag", rc:
             return
 
 
-def _run_threads(pipeline: _Pipeline, source: FrameSource, stop: "_StopFlag", rc: Any) -> None:
+def _run_threads(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: Any) -> None:
     """Capture, process and output in their own threads, joined by latest-frame slots.
 
     OpenCV and numpy release the GIL, so the stages overlap without copying
@@ -668,7 +659,7 @@ def _run_threads(pipeline: _Pipeline, source: FrameSource, stop: "_StopFlag", rc
         summary.stop_reason = f"stopped by {stop.reason}"
 
 
-def _run_processes(pipeline: _Pipeline, source: FrameSource, stop: "_StopFlag", rc: Any, config: Config,
+def _run_processes(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: Any, config: Config,
                    *, transport: str) -> None:
     """Detection in a worker process fed through shared memory (or, for comparison, pickled frames)."""
     from .parallel import DetectorProcess

@@ -216,8 +216,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
         p = scene.particles()
         u, v = geometry.to_projector(p["X"], p["Y"], p["Z"])
         rp = geometry.projector_focal * p["R"] / p["Z"]
-        in_view = ((p["X"] / p["Z"]) * geometry.camera_focal + (geometry.camera_size[0] - 1) / 2)
-        cam_u = in_view
+        cam_u = p["X"] / p["Z"] * geometry.camera_focal + (geometry.camera_size[0] - 1) / 2
         cam_v = p["Y"] / p["Z"] * geometry.camera_focal + (geometry.camera_size[1] - 1) / 2
         visible = (cam_u >= 0) & (cam_u < geometry.camera_size[0]) & (cam_v >= 0) & (cam_v < geometry.camera_size[1])
         in_field = (u >= 0) & (u < pw) & (v >= 0) & (v < ph) & (p["Z"] > 0)

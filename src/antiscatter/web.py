@@ -242,6 +242,12 @@ class ControlPanel:
             pass
         handler.close_connection = True
 
+    def __enter__(self) -> "ControlPanel":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
     def close(self) -> None:
         self.closed = True
         with self._lock:

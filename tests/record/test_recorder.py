@@ -13,6 +13,8 @@ import pytest
 from antiscatter.errors import UsageError
 from antiscatter.record import Recorder, RecorderFull, pixel_format
 
+from conftest import PanelProcess
+
 
 def decode(path, fmt):
     with av.open(str(path)) as container:
@@ -95,31 +97,16 @@ def test_record_bad_input(tmp_path, cli):
 
 
 def test_record_panel_pauses_and_stops(tmp_path):
-    import json
-    import urllib.request
-    proc = subprocess.Popen([sys.executable, "-m", "antiscatter", "record", "r.mkv", "--source", "sim", "--fps", "30",
-                             "--web", "127.0.0.1:0"], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
-    try:
-        url = None
-        while url is None:
-            line = proc.stderr.readline()
-            assert line, "record ended before serving the panel"
-            if line.startswith("control panel: "):
-                url = line.split(": ", 1)[1].strip()
-        post = lambda name: json.loads(urllib.request.urlopen(  # noqa: E731
-            urllib.request.Request(url + "action/" + name, method="POST"), timeout=5).read())["message"]
+    with PanelProcess(["record", "r.mkv", "--source", "sim", "--fps", "30"], tmp_path) as panel:
+        proc, post = panel.proc, panel.post
         time.sleep(1.0)
         assert post("record") == "recording off"  # paused
         time.sleep(0.5)
-        stats = json.loads(urllib.request.urlopen(url + "stats", timeout=5).read())
+        stats = panel.stats()
         assert stats["recording"] == "no" and stats["captured"] > stats["recorded"] - 1
         assert post("light") == "light off"
         post("stop")
         out, err = proc.communicate(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
     assert proc.returncode == 0, err
     match = re.search(r"recorded (\d+) of (\d+) captured frames", out)
     recorded, captured = int(match.group(1)), int(match.group(2))

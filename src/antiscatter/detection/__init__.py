@@ -15,7 +15,7 @@ import numpy as np
 
 from ..detections import Detections
 
-__all__ = ["Stage", "Detector", "DETECTORS", "register_detector", "make_detector", "detect"]
+__all__ = ["Stage", "Detector", "DETECTORS", "register_detector", "detector_entry", "make_detector", "detect"]
 
 
 @dataclass(frozen=True)
@@ -78,14 +78,19 @@ def register_detector(name: str, params: type, build: Callable[[Any], Detector],
     DETECTORS[name] = _Entry(params, build, summary, sweep)
 
 
-def make_detector(name: str, params: Any = None) -> Detector:
-    """Build the detector registered as ``name`` with its params dataclass (or defaults)."""
+def detector_entry(name: str) -> _Entry:
+    """The registry entry of ``name``; an unknown name is a UsageError listing the known ones."""
     from ..errors import UsageError
 
     try:
-        entry = DETECTORS[name]
+        return DETECTORS[name]
     except KeyError:
         raise UsageError(f"unknown detector {name!r}; allowed: {', '.join(sorted(DETECTORS))}") from None
+
+
+def make_detector(name: str, params: Any = None) -> Detector:
+    """Build the detector registered as ``name`` with its params dataclass (or defaults)."""
+    entry = detector_entry(name)
     if params is None:
         params = entry.params()
     elif not isinstance(params, entry.params):
@@ -95,12 +100,7 @@ def make_detector(name: str, params: Any = None) -> Detector:
 
 def detect(image: np.ndarray, detector: str = "seed", **params: Any) -> Detections:
     """Convenience: find particles in one frame with the named detector and keyword params."""
-    from ..errors import UsageError
-
-    try:
-        entry = DETECTORS[detector]
-    except KeyError:
-        raise UsageError(f"unknown detector {detector!r}; allowed: {', '.join(sorted(DETECTORS))}") from None
+    entry = detector_entry(detector)
     known = {f.name for f in fields(entry.params)}
     unknown = set(params) - known
     if unknown:

@@ -61,13 +61,7 @@ def _label_masks(labels: np.ndarray, truth: FrameTruth | None, path: Any = "") -
     return particle, (labels > 0) & ~particle
 
 
-def evaluate_csv(truth_path: Path, detections_path: Path, m: Matching) -> list[FrameScore]:
-    """Score a detections CSV against a truth CSV, frame by frame (0 .. last truth frame)."""
-    truth = read_truth(truth_path, min_visibility=m.min_visibility, min_snr=m.min_snr)
-    frames = range(0, max(truth) + 1) if truth else range(0)
-    found = read_detections(detections_path, frames=frames, frames_source=str(truth_path))
-    empty = (np.empty((0, 2)), np.empty(0), np.empty(0, np.int64))
-    return [_score(f, truth.get(f), *found.get(f, empty)[:2], m) for f in frames]
+_NO_DETECTIONS = (np.empty((0, 2)), np.empty(0), np.empty(0, np.int64))
 
 
 def read_csv_pair(truth_path: Path, detections_path: Path, m: Matching):
@@ -76,6 +70,16 @@ def read_csv_pair(truth_path: Path, detections_path: Path, m: Matching):
     frames = range(0, max(truth) + 1) if truth else range(0)
     found = read_detections(detections_path, frames=frames, frames_source=str(truth_path))
     return truth, found, frames
+
+
+def score_csv_pair(truth: dict, found: dict, frames: range, m: Matching) -> list[FrameScore]:
+    """Per-frame scores of what :func:`read_csv_pair` read."""
+    return [_score(f, truth.get(f), *found.get(f, _NO_DETECTIONS)[:2], m) for f in frames]
+
+
+def evaluate_csv(truth_path: Path, detections_path: Path, m: Matching) -> list[FrameScore]:
+    """Score a detections CSV against a truth CSV, frame by frame (0 .. last truth frame)."""
+    return score_csv_pair(*read_csv_pair(truth_path, detections_path, m), m)
 
 
 def evaluate_folder(folder: Path, detector: Detector, m: Matching) -> list[FrameScore]:

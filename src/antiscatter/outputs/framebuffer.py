@@ -102,9 +102,9 @@ class FramebufferOutput(LightOutput):
         except PermissionError:
             raise UsageError(f"{self.device}: permission denied (add the user to the 'video' group)") from None
         try:
-            if os.fstat(fd).st_size not in (0, ) and os.fstat(fd).st_size < length:
-                raise UsageError(f"{self.device}: {os.fstat(fd).st_size} bytes, smaller than the "
-                                 f"{length} bytes its geometry needs")
+            size = os.fstat(fd).st_size  # 0 for a device node; an ordinary file must be big enough
+            if 0 < size < length:
+                raise UsageError(f"{self.device}: {size} bytes, smaller than the {length} bytes its geometry needs")
             self._map = mmap.mmap(fd, length, mmap.MAP_SHARED, mmap.PROT_READ | mmap.PROT_WRITE)
         except (OSError, ValueError) as exc:
             raise UsageError(f"{self.device}: cannot be memory-mapped ({exc})") from None

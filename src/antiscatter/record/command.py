@@ -13,7 +13,7 @@ import numpy as np
 
 from ..errors import UsageError
 from ..outputs import open_output
-from ..runtime import Pacer, _StopFlag
+from ..runtime import Pacer, StopFlag
 from ..sources import open_source
 from .keys import TerminalKeys
 from .recorder import Recorder, RecorderFull
@@ -65,7 +65,7 @@ def record(request: RecordRequest, *, log: TextIO | None = None, out: TextIO | N
                             buffer_bytes=int(request.buffer_mb * 2 ** 20), overflow=request.overflow)
         keys = TerminalKeys()
         stack.callback(keys.close)
-        stop = stack.enter_context(_StopFlag())
+        stop = stack.enter_context(StopFlag())
         state = {"light": request.light, "recording": not request.paused, "lamp_shown": None}
         panel = None
         if request.web:
@@ -79,10 +79,9 @@ def record(request: RecordRequest, *, log: TextIO | None = None, out: TextIO | N
                 stop.reason = stop.reason or "panel"
                 return "stopping"
 
-            panel = ControlPanel(request.web, title="record",
-                                 actions={"light": lambda: toggle("light"), "record": lambda: toggle("recording"),
-                                          "stop": finish})
-            stack.callback(panel.close)
+            panel = stack.enter_context(ControlPanel(
+                request.web, title="record",
+                actions={"light": lambda: toggle("light"), "record": lambda: toggle("recording"), "stop": finish}))
             print(f"control panel: {panel.url}", file=log)
         if keys.active:
             print("keys: l light on/off, r record/pause, e exit", file=log)

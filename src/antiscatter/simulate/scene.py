@@ -306,13 +306,17 @@ class RealisticScene:
         return {"ids": s["ids"].copy(), "X": s["X"].copy(), "Y": s["Y"].copy(), "Z": s["Z"].copy(),
                 "R": s["R"].copy()}
 
-    def full_light_brightness(self) -> np.ndarray:
-        """(N,) brightness each particle sends back under the full lamp (grey levels, state order)."""
+    def _lamp_gain(self) -> np.ndarray:
+        """(N, 3) light each particle sends back under the full lamp on its axis: inverse square,
+        albedo, colour and water attenuation out and back (grey levels, state order)."""
         c, s = self.config, self._state
         colours = np.array([getattr(c, k).colour for k in _KIND_FIELDS])[s["kind"]]
         att = np.array(c.attenuation)[None, :]
-        gain = (c.brightness * s["albedo"] / s["Z"] ** 2)[:, None] * colours * np.exp(-2 * att * s["Z"][:, None])
-        return gain.mean(axis=1)
+        return (c.brightness * s["albedo"] / s["Z"] ** 2)[:, None] * colours * np.exp(-2 * att * s["Z"][:, None])
+
+    def full_light_brightness(self) -> np.ndarray:
+        """(N,) brightness each particle sends back under the full lamp (grey levels, state order)."""
+        return self._lamp_gain().mean(axis=1)
 
     def render(self, labels: np.ndarray | None = None, *,
                light: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
@@ -340,9 +344,7 @@ class RealisticScene:
         pvx, pvy = self.focal * vx / s["Z"], self.focal * vy / s["Z"]
         streak_x, streak_y = pvx * c.exposure_s, pvy * c.exposure_s
         sigma = self._blur_scale * np.abs(c.focus_m / s["Z"] - 1.0)
-        att = np.array(c.attenuation)[None, :]
-        colours = np.array([getattr(c, k).colour for k in _KIND_FIELDS])[s["kind"]]
-        gain = (c.brightness * s["albedo"] / s["Z"] ** 2)[:, None] * colours * np.exp(-2 * att * s["Z"][:, None])
+        gain = self._lamp_gain()
         cone_at = self._cone[np.clip(np.rint(y), 0, height - 1).astype(int), np.clip(np.rint(x), 0, width - 1).astype(int)]
         gain *= cone_at[:, None]
         if light is not None:
