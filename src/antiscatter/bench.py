@@ -62,17 +62,24 @@ class BenchResult:
     threads: int
     frames: int
     sizes: list[dict[str, Any]]
+    input: str = "bgr"
 
     def as_dict(self) -> dict[str, Any]:
         sizes = [{k: v for k, v in entry.items() if not k.startswith("_")} for entry in self.sizes]
         return {"machine": self.machine, "opencv_threads": self.threads, "frames": self.frames,
-                "sizes": sizes}
+                "input": self.input, "sizes": sizes}
 
 
 def bench(*, detectors: list[str] | None = None, frames: int = 200, threads: int = 1,
           sizes: tuple[tuple[int, int, str], ...] = DEFAULT_SIZES, distinct: int = 20,
-          seed: int = 0) -> BenchResult:
-    """Time every detector's stages on ``frames`` frames per size (``distinct`` different ones, cycled)."""
+          seed: int = 0, input: str = "bgr") -> BenchResult:
+    """Time every detector's stages on ``frames`` frames per size (``distinct`` different ones, cycled).
+
+    input: "bgr" (video files, the simulator, webcams) or "y" (the luma plane alone, as the
+    Pi camera's YUV420 stream delivers it; computed before timing).
+    """
+    if input not in ("bgr", "y"):
+        raise ValueError(f"input: got {input!r}, allowed bgr or y")
     names = detectors or list(DETECTORS)
     built = {name: make_detector(name) for name in names}
     previous = cv2.getNumThreads()
@@ -86,7 +93,8 @@ def bench(*, detectors: list[str] | None = None, frames: int = 200, threads: int
                 if i:
                     for _ in range(3):
                         scene.step()
-                pool.append(scene.render())
+                frame = scene.render()
+                pool.append(cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY) if input == "y" else frame)
             copy_target = np.empty_like(pool[0])
             per_stage: dict[str, dict[str, list[int]]] = {
                 n: {s.name: [] for s in d.stages} for n, d in built.items()}
@@ -128,7 +136,7 @@ def bench(*, detectors: list[str] | None = None, frames: int = 200, threads: int
             results.append(entry)
     finally:
         cv2.setNumThreads(previous)
-    return BenchResult(machine_description(), threads, frames, results)
+    return BenchResult(machine_description(), threads, frames, results, input)
 
 
 def bench_modes(*, frames: int = 300, sizes: tuple[tuple[int, int, str], ...] = DEFAULT_SIZES,
@@ -184,7 +192,7 @@ def format_modes(results: list[dict[str, Any]]) -> str:
 def format_bench(result: BenchResult) -> str:
     """The report's table 1 layout per size: stage mean and sd, plus median, p99 and max (us)."""
     lines = [f"machine: {result.machine}", f"OpenCV threads: {result.threads}; {result.frames} frames per size, "
-             "detectors interleaved"]
+             f"detectors interleaved; input {'BGR frames' if result.input == 'bgr' else 'the Y (luma) plane'}"]
     for entry in result.sizes:
         floor = entry["copy_floor_us"]["median_us"]
         lines.append("")

@@ -259,6 +259,8 @@ def build_parser() -> argparse.ArgumentParser:
     be.add_argument("--detectors", help="comma-separated names (default: all)")
     be.add_argument("--sizes", default="800x600,1456x1088", help="frame sizes (default 800x600,1456x1088)")
     be.add_argument("--threads", type=int, default=1, help="OpenCV threads (default 1, as one Pi core)")
+    be.add_argument("--input", choices=("bgr", "y"), default="bgr", help="frames as bgr (video, simulator, "
+                    "webcam; default) or y: the luma plane alone, as the Pi camera's YUV420 stream gives it")
     be.add_argument("--modes", action="store_true", help="instead: the simulator through every execution "
                     "mode of run (single, threads): throughput, end-to-end latency p50/p99/max, drops")
     be.add_argument("--json", action="store_true", help="print the results as JSON")
@@ -434,7 +436,8 @@ def _bench(args: argparse.Namespace) -> int:
         print(json.dumps({"machine": __import__("antiscatter.bench", fromlist=["x"]).machine_description(),
                           "modes": modes}, indent=2) if args.json else format_modes(modes))
         return 0
-    result = bench(detectors=names, frames=args.frames, threads=args.threads, sizes=tuple(sizes))
+    result = bench(detectors=names, frames=args.frames, threads=args.threads, sizes=tuple(sizes),
+                   input=args.input)
     if args.plot:
         plot_bench(result, args.plot)
     print(json.dumps(result.as_dict(), indent=2) if args.json else format_bench(result))

@@ -136,3 +136,28 @@ def test_f1_at_least_seeds_on_a_small_fixed_scenario(preset):
     seed, contrast = summarise(scores["seed"]), summarise(scores["contrast"])
     assert contrast["f1"] >= seed["f1"]
     assert contrast["recall"] >= seed["recall"]
+
+
+def test_three_discs_in_a_row_and_two_overlapping_with_a_dip_are_split():
+    discs = [(100.0, 100.0, 4.0, 120), (109.0, 100.0, 4.0, 120), (118.0, 100.0, 4.0, 120),  # flat, touching
+             (250.0, 200.0, 2.5, 150), (256.0, 203.0, 2.5, 90)]  # blurred, overlapping halos
+    found = detect(scene((400, 300), discs, background="flat", noise=1.5), "contrast")
+    for x, y, _, _ in discs:
+        assert np.hypot(found.centres[:, 0] - x, found.centres[:, 1] - y).min() < 1.5, (x, y)
+    assert len(found) == len(discs)
+
+
+def test_background_model_updates_one_band_per_frame():
+    from antiscatter.detection.contrast import BackgroundModel
+
+    model = BackgroundModel(cell=8, memory=20, bands=4)
+    first = np.full((120, 160), 40, np.uint8)
+    base, _ = model.estimate(first)
+    before = base.copy()
+    brighter = np.full_like(first, 60)
+    model.learn(brighter, np.zeros_like(first))
+    changed = np.flatnonzero((model.base != before).any(axis=1))
+    assert len(changed) and changed.min() == 0 and changed.max() < 40  # the top band only
+    for _ in range(3):
+        model.learn(brighter, np.zeros_like(first))
+    assert (model.base > before).all()  # one cycle of bands covers the frame

@@ -130,6 +130,18 @@ def test_bench_json_has_every_stage_for_every_detector(cli, tmp_path):
             assert d["total"]["median_us"] > 0
         assert entry["detectors"]["seed"]["speedup_vs_seed"] == pytest.approx(1.0)
     assert cv2.imread(str(tmp_path / "b.png")) is not None
+    assert data["input"] == "bgr"
+
+
+def test_bench_on_the_luma_plane(cli):
+    result = cli("bench", "--frames", "3", "--sizes", "640x480", "--input", "y", "--json")
+    assert result.code == 0, result.err
+    data = json.loads(result.out)
+    assert data["input"] == "y"
+    counts = {name: d["particles_per_frame"] for name, d in data["sizes"][0]["detectors"].items()}
+    assert counts["contrast"] > 0 and counts["seed"] >= 0
+    bad = cli("bench", "--input", "rgb")
+    assert bad.code == 2 and "--input" in bad.err
 
 
 def test_scoreboard_end_to_end_on_a_tiny_catalogue(tmp_path, cli):

@@ -126,87 +126,145 @@ def spatial_background(half: np.ndarray, *, cell: int) -> np.ndarray:
 
 
 class BackgroundModel:
-    """Per-pixel background learnt over ``memory`` frames, updated where no particle was found.
+    """Per-pixel background and sensor noise, learnt over ``memory`` frames in horizontal bands.
 
     The first frame (and any frame of another size) starts from the spatial
-    background; ``memory=0`` keeps it single-frame.  This is the detector's only state.
+    background and measures the noise everywhere.  After that, each frame
+    updates one of ``bands`` horizontal bands -- background, noise and the
+    threshold map there -- at ``bands`` times the per-frame rate, so every frame
+    costs the same and a fraction of a full update; ``memory=0`` keeps the
+    detector single-frame (everything recomputed from each frame).  This is the
+    detector's only state.
+
+    Attributes read by the detector: ``base`` (uint8 background), ``limit``
+    (uint8: a pixel is a candidate where frame - base > limit) and ``noise``
+    (float32 per coarse cell, grey levels).
     """
-
-    def __init__(self, *, cell: int, memory: int) -> None:
-        self.cell = cell
-        self.alpha = 1.0 / memory if memory else 0.0
-        self._previous: np.ndarray | None = None
-        self._persist: np.ndarray | None = None
-        self.background: np.ndarray | None = None
-        self._frames = 0
-
-    def reset(self) -> None:
-        self.background = None
-        self._previous = None
-        self._persist = None
-        self._frames = 0
-
-    def estimate(self, half: np.ndarray) -> np.ndarray:
-        """The background for this frame, float32 (h, w)."""
-        if self.alpha == 0.0 or self.background is None or self.background.shape != half.shape:
-            self.background = spatial_background(half, cell=self.cell)
-            self._frames = 0
-            self._previous = self._persist = None
-        return self.background
 
     #: frames a pixel must stay under an unchanging "particle" before it counts as scene
     PERSIST = 8
 
-    def learn(self, half: np.ndarray, particles: np.ndarray, steady_limit: np.ndarray) -> None:
-        """Update from this frame.
+    def __init__(self, *, cell: int, memory: int, k: float = 4.0, min_contrast: float = 4.0,
+                 bands: int = 4) -> None:
+        self.cell = cell
+        self.k = k
+        self.min_contrast = min_contrast
+        self.alpha = 1.0 / memory if memory else 0.0
+        self.bands = bands if memory else 1
+        self.reset()
 
-        Pixels without a particle learn at the full rate.  Under a particle
-        (``particles``: uint8, 255 = particle) a pixel learns at a quarter of it,
-        so moving particles leave almost no trace -- unless it has stayed within
-        2 noise units (``noise``, float32) of its last value for ``PERSIST``
-        frames in a row: then it is scene the first frames mistook for a particle
-        (a bright pebble, a padding highlight) and learns at the full rate.
+    def reset(self) -> None:
+        self.background: np.ndarray | None = None
+        self.base: np.ndarray | None = None
+        self.limit: np.ndarray | None = None
+        self.noise: np.ndarray | None = None
+        self._deficit: np.ndarray | None = None  # mean of max(base - frame, 0) per coarse cell
+        self._previous: np.ndarray | None = None
+        self._persist: np.ndarray | None = None
+        self._updates = np.zeros(max(self.bands, 1), np.int64)
+        self._next = 0
+
+    def _rows(self, band: int, height: int) -> tuple[int, int, int, int]:
+        """Pixel rows [r0, r1) and coarse-cell rows [c0, c1) of ``band``: bands hold whole cell rows."""
+        cells = max(height // self.cell, 3)
+        c0, c1 = band * cells // self.bands, (band + 1) * cells // self.bands
+        return c0 * height // cells, c1 * height // cells, c0, c1
+
+    def estimate(self, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(base, limit) for this frame, both uint8 (h, w)."""
+        if self.alpha == 0.0 or self.background is None or self.background.shape != half.shape:
+            self.background = spatial_background(half, cell=self.cell)
+            self.base = cv2.convertScaleAbs(self.background)  # rounded, saturated uint8 (background >= 0)
+            h, w = half.shape
+            self._deficit = np.zeros((max(h // self.cell, 3), max(w // self.cell, 3)), np.float32)
+            for band in range(self.bands):
+                self._measure_noise(half, band)
+            self._update_limit(half.shape)
+            self._previous = self._persist = None
+            self._updates[:] = 0
+            self._next = 0
+        return self.base, self.limit
+
+    def _measure_noise(self, half: np.ndarray, band: int) -> None:
+        """Particles only ever add light, so the noise is measured on the *dark* side:
+        per coarse cell, the mean of max(base - frame, 0), which for symmetric noise
+        of spread s is s / sqrt(2 pi), whatever bright particles the cell holds."""
+        r0, r1, c0, c1 = self._rows(band, half.shape[0])
+        if c1 <= c0:
+            return
+        deficit = cv2.subtract(self.base[r0:r1], half[r0:r1]).astype(np.float32)
+        cv2.resize(deficit, (self._deficit.shape[1], c1 - c0), dst=self._deficit[c0:c1],
+                   interpolation=cv2.INTER_AREA)
+
+    def _update_limit(self, shape: tuple[int, int]) -> None:
+        """noise (3x3-cell median of the dark-side spread, so a few cells of particles
+        do not inflate it) and the per-pixel limit max(k * noise, min_contrast) as
+        uint8, rounded down (``excess > limit`` on integers is ``excess > k * noise``)."""
+        h, w = shape
+        self.noise = cv2.medianBlur(self._deficit, 3) * np.float32(2.5066)  # s = sqrt(2 pi) E[max(-x, 0)]
+        limit = cv2.resize(np.maximum(self.k * self.noise, np.float32(self.min_contrast)), (w, h),
+                           interpolation=cv2.INTER_LINEAR)
+        self.limit = cv2.convertScaleAbs(limit, beta=-0.4999)  # floor, saturated at 255
+
+    def learn(self, half: np.ndarray, mask: np.ndarray) -> None:
+        """Update one band from this frame (``mask``: uint8, 255 = particle candidate).
+
+        Pixels without a particle (the mask grown by one pixel) learn at the full
+        rate.  Under a particle a pixel learns at a quarter of it, so moving
+        particles leave almost no trace -- unless it has changed by no more than
+        the detection limit (``limit``) between its updates for ``PERSIST`` frames:
+        then it is scene the first frames mistook for a particle (a bright pebble,
+        a padding highlight) and learns at four times the rate.  The band's noise
+        is measured too; the threshold map follows once every band has been.
         """
         if self.alpha == 0.0 or self.background is None:
             return
-        rate = min(1.0, max(self.alpha, 1.0 / (self._frames + 2)))
-        learn = cv2.bitwise_not(particles)
-        if self._previous is not None and self._previous.shape == half.shape:
-            change = cv2.absdiff(half, self._previous)
-            steady = cv2.bitwise_and(cv2.compare(change, steady_limit, cv2.CMP_LE), particles)
-            if self._persist is None or self._persist.shape != half.shape:
-                self._persist = np.zeros(half.shape, np.uint8)
-            cv2.add(self._persist, 1, dst=self._persist, mask=steady)
-            cv2.bitwise_and(self._persist, steady, dst=self._persist)
-            scene = cv2.compare(self._persist, self.PERSIST, cv2.CMP_GE)
-            # scene mistaken for a particle is corrected quickly
-            cv2.accumulateWeighted(half, self.background, min(1.0, 4 * rate), mask=scene)
-        cv2.accumulateWeighted(half, self.background, rate / 4)
-        cv2.accumulateWeighted(half, self.background, rate * 0.75, mask=learn)
-        self._previous = half.copy()
-        self._frames += 1
+        band = self._next
+        self._next = (band + 1) % self.bands
+        h, w = half.shape
+        r0, r1, c0, c1 = self._rows(band, h)
+        if r1 <= r0:
+            return
+        self._measure_noise(half, band)  # against the base this frame was thresholded with
+        frame = half[r0:r1]
+        top, bottom = max(r0 - 1, 0), min(r1 + 1, h)
+        particles = cv2.dilate(mask[top:bottom], None)[r0 - top:r0 - top + (r1 - r0)]
+        updates = int(self._updates[band])
+        rate = min(1.0, max(self.alpha * self.bands, 1.0 / (updates + 2)))
+        background = self.background[r0:r1]
+        if self._previous is None or self._previous.shape != half.shape:
+            self._previous = half.copy()
+            self._persist = np.zeros(half.shape, np.uint8)
+        else:
+            change = cv2.absdiff(frame, self._previous[r0:r1])
+            steady = cv2.bitwise_and(cv2.compare(change, self.limit[r0:r1], cv2.CMP_LE), particles)
+            persist = self._persist[r0:r1]
+            cv2.add(persist, 1, dst=persist, mask=steady)
+            cv2.bitwise_and(persist, steady, dst=persist)
+            needed = max(2, -(-self.PERSIST // self.bands))  # band updates, about PERSIST frames
+            scene = cv2.compare(persist, needed, cv2.CMP_GE)
+            cv2.accumulateWeighted(frame, background, min(1.0, 4 * rate), mask=scene)
+            self._previous[r0:r1] = frame
+        cv2.accumulateWeighted(frame, background, rate / 4)
+        cv2.accumulateWeighted(frame, background, rate * 0.75, mask=cv2.bitwise_not(particles))
+        cv2.convertScaleAbs(background, dst=self.base[r0:r1])
+        self._updates[band] = updates + 1
+        if self._next == 0:  # a whole cycle of bands: the noise map has been renewed
+            self._update_limit(half.shape)
 
 
-def threshold_mask(half: np.ndarray, background: np.ndarray, *, cell: int, k: float,
-                   min_contrast: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(candidate mask uint8, positive excess over the background uint8, noise per coarse cell float32).
+def threshold_mask(half: np.ndarray, base: np.ndarray, limit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(candidate mask uint8, positive excess over the background uint8).
 
-    Particles only ever add light, so the noise is measured on the *dark* side:
-    per coarse cell, the mean of max(background - frame, 0), which for symmetric
-    noise of spread s is 0.399 s, whatever bright particles the cell holds.  A
-    3x3-cell median smooths the estimate.  A pixel is a candidate where the
-    excess exceeds max(k * noise, min_contrast).
+    A pixel is a candidate where its excess over the background, max(frame - base, 0),
+    exceeds ``limit`` (the model's max(k * noise, min_contrast), both uint8).  The
+    excess is written into a buffer with a one-pixel border of zeros, so later
+    neighbourhood reads need no bounds checks (the returned array is a view).
     """
     h, w = half.shape
-    cw, ch = max(w // cell, 3), max(h // cell, 3)
-    base = cv2.convertScaleAbs(background)  # rounded, saturated uint8 (the background is >= 0)
-    deficit = cv2.subtract(base, half).astype(np.float32)  # max(background - frame, 0)
-    spread = cv2.medianBlur(cv2.resize(deficit, (cw, ch), interpolation=cv2.INTER_AREA), 3)
-    noise = spread * np.float32(2.5066)  # E[max(-x, 0)] = s / sqrt(2 pi) for x ~ N(0, s)
-    limit = cv2.resize(np.maximum(k * noise, np.float32(min_contrast)), (w, h), interpolation=cv2.INTER_LINEAR)
-    excess = cv2.subtract(half, base)  # max(frame - background, 0), uint8
-    mask = cv2.compare(excess.astype(np.float32), limit, cv2.CMP_GT)
-    return mask, excess, noise
+    padded = np.zeros((h + 2, w + 2), np.uint8)
+    excess = cv2.subtract(half, base, dst=padded[1:-1, 1:-1])
+    return cv2.compare(excess, limit, cv2.CMP_GT), excess
 
 
 def noise_at(noise: np.ndarray, x: np.ndarray, y: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -214,13 +272,6 @@ def noise_at(noise: np.ndarray, x: np.ndarray, y: np.ndarray, shape: tuple[int, 
     ch, cw = noise.shape
     h, w = shape
     return noise[np.minimum(y * ch // h, ch - 1), np.minimum(x * cw // w, cw - 1)]
-
-
-def steady_limit(noise: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """3 noise units per pixel as uint8 (rounded up): the most a static pixel changes between frames."""
-    h, w = shape
-    return cv2.resize(np.ceil(3.0 * noise).clip(1, 255).astype(np.uint8), (w, h),
-                      interpolation=cv2.INTER_NEAREST)
 
 
 def label(mask: np.ndarray) -> dict[str, np.ndarray]:
@@ -231,11 +282,11 @@ def label(mask: np.ndarray) -> dict[str, np.ndarray]:
     count, labels = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
     points = cv2.findNonZero(mask)
     if points is None:
-        empty = np.empty(0, np.int64)
+        empty = np.empty(0, np.intp)
         return {"labels": empty, "x": empty, "y": empty, "count": 0}
-    xy = points.reshape(-1, 2)
-    x, y = xy[:, 0].astype(np.int64), xy[:, 1].astype(np.int64)
-    return {"labels": labels[y, x].astype(np.int64) - 1, "x": x, "y": y, "count": count - 1}
+    xy = points.reshape(-1, 2).astype(np.intp)
+    x, y = xy[:, 0], xy[:, 1]
+    return {"labels": labels[y, x].astype(np.intp) - 1, "x": x, "y": y, "count": count - 1}
 
 
 def measure(components: dict[str, np.ndarray], excess: np.ndarray, noise: np.ndarray, *,
@@ -250,19 +301,13 @@ def measure(components: dict[str, np.ndarray], excess: np.ndarray, noise: np.nda
     lab, x, y = components["labels"], components["x"], components["y"]
     weight = np.maximum(excess[y, x].astype(np.float64), 1e-3)
     if split:
-        lab, n = _split_peaks(lab, x, y, weight, excess, noise_at(noise, x, y, excess.shape), n)
+        lab, n = _split_peaks(lab, x, y, weight, excess, noise, n)
     wsum = np.bincount(lab, weights=weight, minlength=n)
     cx = np.bincount(lab, weights=weight * x, minlength=n) / wsum
     cy = np.bincount(lab, weights=weight * y, minlength=n) / wsum
-    # per-component maxima by sorting once (np.maximum.at is unbuffered and slow)
-    order = np.argsort(lab, kind="stable")
-    starts = np.flatnonzero(np.r_[True, np.diff(lab[order]) != 0])
-    present = lab[order][starts]
-    peak = np.zeros(n)
-    peak[present] = np.maximum.reduceat(weight[order], starts)
-    far = np.zeros(n)
-    distance = np.hypot(x - cx[lab], y - cy[lab])
-    far[present] = np.maximum.reduceat(distance[order], starts)
+    dx, dy = x - cx[lab], y - cy[lab]
+    peak, far2 = _group_max(lab, n, weight, dx * dx + dy * dy)
+    far = np.sqrt(far2)
     # working -> full resolution: pixel centres map as u = f x + (f - 1) / 2
     offset = (factor - 1) / 2.0
     centres = np.column_stack([factor * cx + offset, factor * cy + offset])
@@ -271,67 +316,184 @@ def measure(components: dict[str, np.ndarray], excess: np.ndarray, noise: np.nda
     return Detections(centres[keep], radii[keep], scores=peak[keep])
 
 
+#: offsets of a 3x3 and a 5x5 neighbourhood as (dy, dx)
+_N3 = np.array([(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)])
+_N5 = np.array([(dy, dx) for dy in range(-2, 3) for dx in range(-2, 3)])
+
+
 def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, excess: np.ndarray,
                  noise: np.ndarray, n: int) -> tuple[np.ndarray, int]:
     """Split components that hold two or more particles (touching or overlapping).
 
-    Within a component (of 8 pixels or more), the excess is smoothed (3x3) and
-    its local maxima (5x5) found; a maximum is a separate particle when it is
-    at least 3 px from a brighter one and the profile between them dips below
-    it by both a quarter of its height and 3 noise units (read on the
-    unsmoothed excess, so a narrow neck counts).  Flat or saturated particles
-    have no intensity dip; for them the same test runs on the distance
-    transform of the component's core (the pixels above half its peak; a neck
-    at least a quarter narrower than the smaller disc).  Pixels go to the nearest kept peak.
+    Within each component of 8 pixels or more, the local maxima (5x5) of the
+    3x3-summed excess are its candidate peaks.  A peak other than the
+    component's highest is a separate particle when its nearest higher peak is
+    at least 3 px away and the unsmoothed excess on the segment between them
+    dips below it by both a quarter of its height and 3 noise units (so a narrow
+    neck counts).  This runs on all components at once, without Python loops.
+    Flat or saturated particles have no intensity dip; for components without
+    an intensity split whose core (the pixels above half the peak) has
+    ``_MIN_CORE`` pixels or more, the same test runs on the distance transform of
+    the core (a neck at least a quarter narrower than the smaller disc).  Pixels go to the nearest kept peak of their component.
     """
     area = np.bincount(lab, minlength=n)
-    # candidates, found without Python loops: components holding two or more 5x5 maxima
-    smooth_all = cv2.boxFilter(excess, cv2.CV_16U, (3, 3), normalize=False)  # exact 3x3 sums: no rounding ties
-    is_max = smooth_all[y, x] >= cv2.dilate(smooth_all, np.ones((5, 5), np.uint8))[y, x]
-    maxima = np.bincount(lab[is_max], minlength=n)
-    big = np.flatnonzero((area >= 8) & (maxima >= 2))
-    if len(big) == 0:
+    inside = area[lab] >= 8
+    if not inside.any():
         return lab, n
+    idx = np.flatnonzero(inside)
+    px, py, pl = x[idx], y[idx], lab[idx]
+    smooth_img = cv2.boxFilter(excess, cv2.CV_16U, (3, 3), normalize=False)  # exact sums: no rounding ties
+    s = smooth_img[py, px]
+    is_max = s >= cv2.dilate(smooth_img, _K5)[py, px]
+    maxima = np.bincount(pl[is_max], minlength=n)
+    peaks = np.flatnonzero(is_max & (maxima[pl] >= 2))
+    kept_c, kept_y, kept_x = _separate(pl[peaks], py[peaks], px[peaks], s[peaks] / 9.0,
+                                       excess, noise_at(noise, px[peaks], py[peaks], excess.shape))
+    counts = np.bincount(kept_c, minlength=n)
+    extra = []
+    for c in _necked(pl, px, py, weight[idx], n, counts < 2).tolist():
+        mine = pl == c
+        found = _split_flat(px[mine], py[mine], weight[idx][mine])
+        if found is not None:
+            extra.append((np.full(len(found[0]), c), *found))
+    if extra:
+        keep = ~np.isin(kept_c, [e[0][0] for e in extra])
+        kept_c = np.concatenate([kept_c[keep]] + [e[0] for e in extra])
+        kept_y = np.concatenate([kept_y[keep]] + [e[1] for e in extra])
+        kept_x = np.concatenate([kept_x[keep]] + [e[2] for e in extra])
+    counts = np.bincount(kept_c, minlength=n)
+    split = counts >= 2
+    if not split.any():
+        return lab, n
+    sel = np.flatnonzero(split[kept_c])
+    kc, ky, kx = kept_c[sel], kept_y[sel], kept_x[sel]
+    order = np.argsort(kc, kind="stable")
+    kc, ky, kx = kc[order], ky[order], kx[order]
+    comps = np.flatnonzero(split)
+    row = np.full(n, -1)
+    row[comps] = np.arange(len(comps))
+    width = int(counts[comps].max())
+    first = np.searchsorted(kc, comps)
+    rank = np.arange(len(kc)) - first[row[kc]]
+    tx = np.full((len(comps), width), 1e9)
+    ty = np.full((len(comps), width), 1e9)
+    tx[row[kc], rank], ty[row[kc], rank] = kx, ky
+    pixels = np.flatnonzero(split[lab])
+    r = row[lab[pixels]]
+    nearest = np.argmin((x[pixels, None] - tx[r]) ** 2 + (y[pixels, None] - ty[r]) ** 2, axis=1)
+    new_base = n + np.concatenate([[0], np.cumsum(counts[comps] - 1)[:-1]])  # first new label per component
     lab = lab.copy()
-    next_label = n
-    order = np.argsort(lab, kind="stable")
-    bounds = np.concatenate([[0], np.cumsum(area)])
-    kernel = np.ones((5, 5), np.uint8)
-    for c in big.tolist():
-        idx = order[bounds[c]:bounds[c + 1]]
-        px, py, pw = x[idx], y[idx], weight[idx]
-        x0, y0 = px.min() - 1, py.min() - 1
-        patch = np.zeros((py.max() - y0 + 2, px.max() - x0 + 2), np.float32)
-        patch[py - y0, px - x0] = pw
-        smooth = cv2.blur(patch, (3, 3))
-        inside = (patch > 0).astype(np.uint8)
-        sigma = float(np.median(noise[idx]))
-        # intensity peaks, read on the unsmoothed profile so narrow necks count
-        chosen_yx = _separate_peaks(smooth, patch, inside, kernel, lambda v: max(v / 4, 3 * sigma))
-        if len(chosen_yx) < 2:
-            # shape: touching flat or saturated discs have one plateau but two
-            # distance-transform peaks with a neck between them
-            core = (patch >= 0.5 * patch.max()).astype(np.uint8)  # the halo would hide the neck
-            distance = cv2.distanceTransform(core, cv2.DIST_L2, 3)
-            chosen_yx = _separate_peaks(distance, distance, core, kernel, lambda v: max(v / 4, 1.0))
-        if len(chosen_yx) < 2:
-            continue
-        chosen = chosen_yx
-        sy = np.array([p[0] for p in chosen]) + y0
-        sx = np.array([p[1] for p in chosen]) + x0
-        d = (px[:, None] - sx[None, :]) ** 2 + (py[:, None] - sy[None, :]) ** 2
-        nearest = np.argmin(d, axis=1)
-        lab[idx] = np.where(nearest == 0, c, next_label + nearest - 1)
-        next_label += len(chosen) - 1
-    return lab, next_label
+    lab[pixels] = np.where(nearest == 0, lab[pixels], new_base[r] + nearest - 1)
+    return lab, n + int((counts[comps] - 1).sum())
 
 
-def _separate_peaks(surface: np.ndarray, profile: np.ndarray, inside: np.ndarray, kernel: np.ndarray,
-                    min_dip) -> list[tuple[int, int]]:
-    """Local maxima of ``surface`` inside the component that stand apart: each at
-    least 3 px from a higher one, with ``profile`` dipping between them by
+_K5 = np.ones((5, 5), np.uint8)
+#: smallest core (pixels above half the peak) that can hold two discs with a neck
+_MIN_CORE = 20
+
+
+def _group_max(lab: np.ndarray, n: int, *values: np.ndarray) -> list[np.ndarray]:
+    """Per-label maxima of each of ``values`` (0 for absent labels), by sorting the
+    labels once (np.maximum.at is unbuffered and slow; 16-bit labels sort by radix)."""
+    if len(lab) == 0:
+        return [np.zeros(n) for _ in values]
+    keys = lab.astype(np.uint16) if n <= 65536 else lab
+    order = np.argsort(keys, kind="stable")
+    sorted_lab = lab[order]
+    change = np.empty(len(lab), bool)
+    change[0] = True
+    np.not_equal(sorted_lab[1:], sorted_lab[:-1], out=change[1:])
+    starts = np.flatnonzero(change)
+    present = sorted_lab[starts]
+    out = []
+    for v in values:
+        m = np.zeros(n)
+        m[present] = np.maximum.reduceat(v[order], starts)
+        out.append(m)
+    return out
+
+
+def _necked(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, n: int,
+            candidates: np.ndarray) -> np.ndarray:
+    """Components (among ``candidates``, bool per label) whose core -- the pixels
+    above half the peak -- has ``_MIN_CORE`` pixels or more and is not compact:
+    area / (2 pi mean squared distance from its centroid) below 0.8, where a disc
+    gives 1 and two touching equal discs 2/3."""
+    area = np.bincount(lab, minlength=n)
+    sel = candidates[lab] & (area[lab] >= _MIN_CORE)
+    if not sel.any():
+        return np.empty(0, np.intp)
+    lab, x, y, weight = lab[sel], x[sel], y[sel], weight[sel]
+    top, = _group_max(lab, n, weight)
+    core = weight >= 0.5 * top[lab]
+    lab, x, y = lab[core], x[core].astype(np.float64), y[core].astype(np.float64)
+    area = np.bincount(lab, minlength=n)
+    safe = np.maximum(area, 1)
+    mx, my = np.bincount(lab, x, n) / safe, np.bincount(lab, y, n) / safe
+    msd = np.bincount(lab, x * x + y * y, n) / safe - mx * mx - my * my
+    compact = area >= 0.8 * 2 * np.pi * np.maximum(msd, 1e-9)
+    return np.flatnonzero((area >= _MIN_CORE) & ~compact)
+
+
+def _separate(comp: np.ndarray, py: np.ndarray, px: np.ndarray, value: np.ndarray, excess: np.ndarray,
+              sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The peaks that stand apart, for all components at once: (component, y, x) of each kept peak.
+
+    The highest peak of each component is kept; another is kept when its
+    nearest higher peak (same component) is at least 3 px away and the excess
+    on the segment between them dips below its own by max(value / 4, 3 sigma).
+    """
+    if len(comp) == 0:
+        return comp, py, px
+    order = np.lexsort((-value, comp))  # by component, highest first
+    comp, py, px, value, sigma = comp[order], py[order], px[order], value[order], sigma[order]
+    first = np.empty(len(comp), bool)
+    first[0] = True
+    np.not_equal(comp[1:], comp[:-1], out=first[1:])
+    start = np.maximum.accumulate(np.where(first, np.arange(len(comp)), 0))
+    rank = np.arange(len(comp)) - start  # peaks above this one in its component
+    # every (peak, higher peak) pair of a component: peak i against ranks 0..rank_i-1
+    i = np.repeat(np.arange(len(comp)), rank)
+    j = np.repeat(start, rank) + (np.arange(len(i)) - np.repeat(np.cumsum(rank) - rank, rank))
+    kept = first.copy()
+    if len(i):
+        d2 = (py[i] - py[j]) ** 2 + (px[i] - px[j]) ** 2
+        pick = np.lexsort((d2, i))  # for each peak, its nearest higher peak comes first
+        ip = i[pick]
+        pick = pick[np.concatenate(([True], ip[1:] != ip[:-1]))]
+        i, j, d2 = i[pick], j[pick], d2[pick]
+        far = d2 >= 9
+        i, j = i[far], j[far]
+        if len(i):
+            steps = 2 + int(np.sqrt(d2[far].max()))
+            t = np.arange(steps) / (steps - 1.0)
+            ty = np.rint(py[i, None] + t * (py[j] - py[i])[:, None]).astype(np.intp)
+            tx = np.rint(px[i, None] + t * (px[j] - px[i])[:, None]).astype(np.intp)
+            dip = excess[py[i], px[i]].astype(np.float64) - excess[ty, tx].min(axis=1)
+            kept[i[dip >= np.maximum(value[i] / 4.0, 3.0 * sigma[i])]] = True
+    return comp[kept], py[kept], px[kept]
+
+
+def _split_flat(px: np.ndarray, py: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Peaks of a flat or saturated component by shape: touching discs with one
+    plateau have two distance-transform peaks with a neck between them.
+    Returns (y, x) of the peaks, or None for one."""
+    x0, y0 = px.min() - 1, py.min() - 1
+    patch = np.zeros((py.max() - y0 + 2, px.max() - x0 + 2), np.float32)
+    patch[py - y0, px - x0] = weight
+    core = (patch >= 0.5 * patch.max()).astype(np.uint8)  # the halo would hide the neck
+    distance = cv2.distanceTransform(core, cv2.DIST_L2, 3)
+    chosen = _separate_peaks(distance, core, lambda v: max(v / 4, 1.0))
+    if len(chosen) < 2:
+        return None
+    return np.array([p[0] for p in chosen]) + y0, np.array([p[1] for p in chosen]) + x0
+
+
+def _separate_peaks(surface: np.ndarray, inside: np.ndarray, min_dip) -> list[tuple[int, int]]:
+    """Local maxima (5x5) of ``surface`` inside the component that stand apart: each
+    at least 3 px from a higher kept one, with ``surface`` dipping between them by
     ``min_dip(height)`` or more.  Returns (row, col) positions, highest first."""
-    is_peak = (surface >= cv2.dilate(surface, kernel)) & (inside > 0)
+    is_peak = (surface >= cv2.dilate(surface, _K5)) & (inside > 0)
     pys, pxs = np.nonzero(is_peak)
     if len(pys) < 2:
         return []
@@ -347,43 +509,44 @@ def _separate_peaks(surface: np.ndarray, profile: np.ndarray, inside: np.ndarray
         steps = 2 + int(np.hypot(pys[i] - pys[j], pxs[i] - pxs[j]))
         ty = np.rint(np.linspace(pys[i], pys[j], steps)).astype(int)
         tx = np.rint(np.linspace(pxs[i], pxs[j], steps)).astype(int)
-        if profile[pys[i], pxs[i]] - profile[ty, tx].min() >= min_dip(values[i]):
+        if surface[pys[i], pxs[i]] - surface[ty, tx].min() >= min_dip(values[i]):
             chosen.append(i)
     return [(int(pys[i]), int(pxs[i])) for i in chosen]
 
 
 def build_contrast(params: ContrastParams) -> Detector:
     """The ``contrast`` chain as timed stages (one background model per detector instance)."""
-    model = BackgroundModel(cell=params.cell, memory=params.memory)
-    state: dict[str, Any] = {"factor": 2, "cell": params.cell // 2}
+    model = BackgroundModel(cell=params.cell, memory=params.memory, k=params.k, min_contrast=params.min_contrast)
+    state: dict[str, Any] = {"factor": 2, "width": 800}
 
     def stage_downsample(image: np.ndarray) -> np.ndarray:
         factor = working_factor(image.shape[1], params.factor)
         # cells cover the same share of the view at any width above 800 px
         cell = params.cell * max(1.0, image.shape[1] / 800.0)
-        state["factor"], state["cell"], state["width"] = factor, max(int(round(cell / factor)), 2), image.shape[1]
-        model.cell = state["cell"]
+        state["factor"], state["width"] = factor, image.shape[1]
+        model.cell = max(int(round(cell / factor)), 2)
         return downsample(image, factor=factor)
 
-    def stage_background(half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return half, model.estimate(half)
+    def stage_background(half: np.ndarray):
+        return half, *model.estimate(half)
 
-    def stage_threshold(value: tuple[np.ndarray, np.ndarray]):
-        half, background = value
-        mask, excess, noise = threshold_mask(half, background, cell=state["cell"], k=params.k,
-                                             min_contrast=params.min_contrast)
-        return half, mask, excess, noise
+    def stage_threshold(value):
+        half, base, limit = value
+        return half, *threshold_mask(half, base, limit)
 
     def stage_label(value):
-        half, mask, excess, noise = value
-        return half, mask, excess, noise, label(mask)
+        half, mask, excess = value
+        return half, mask, excess, label(mask)
 
-    def stage_measure(value) -> Detections:
-        half, mask, excess, noise, components = value
-        found = measure(components, excess, noise, halo=params.halo, max_radius=params.max_radius,
+    def stage_measure(value):
+        half, mask, excess, components = value
+        found = measure(components, excess, model.noise, halo=params.halo, max_radius=params.max_radius,
                         split=params.split, frame_width=state["width"], factor=state["factor"])
-        if model.alpha:
-            model.learn(half, cv2.dilate(mask, None), steady_limit(noise, half.shape))
+        return half, mask, found
+
+    def stage_update(value) -> Detections:
+        half, mask, found = value
+        model.learn(half, mask)
         return found
 
     stages = (
@@ -392,6 +555,7 @@ def build_contrast(params: ContrastParams) -> Detector:
         Stage("threshold", "Local Threshold", stage_threshold),
         Stage("label", "Connected Components", stage_label),
         Stage("measure", "Measure Particles", stage_measure),
+        Stage("update", "Background Update", stage_update),
     )
     return Detector("contrast", stages, params, reset=model.reset)
 
