@@ -103,3 +103,18 @@ def test_curves_plot(tmp_path):
     assert set(curves["by_latency"]) == {"none", "coast+predict", "flash+predict"}
     assert all(len(v) == 2 for v in curves["by_baseline"].values())
     assert cv2.imread(str(tmp_path / "t.png")) is not None
+
+
+@pytest.mark.parametrize("exposure_s, first_dark_frame", [(0.003, 0), (0.004, 1)])
+def test_a_pattern_ready_within_the_frame_goes_on_at_the_next_refresh(exposure_s, first_dark_frame):
+    # 120 Hz projector, 60 Hz camera: refreshes at 0 and 8.33 ms of each frame, the flash in the first.
+    # Exposure 3 ms + latency 4 ms: ready at 7 ms, the hole is on at 8.33 ms of the same frame;
+    # exposure 4 ms + latency 5 ms: ready at 9 ms, too late for it -- on in the next frame.
+    latency = 5 if exposure_s == 0.004 else 4
+    out = simulate_loop(TwinRun("contrast", "calibrated", "flash", flash_level=0.25, margin_px=12.0),
+                        geometry=TwinGeometry(camera_size=SIZE, baseline_m=0.0, exposure_s=exposure_s),
+                        frames=6, latency_ms=latency, scene=one_static_particle())
+    removed = [f["removed"] for f in out["series"]]
+    assert removed[first_dark_frame] == pytest.approx(1 - 0.25 / 2, abs=1e-6)
+    if first_dark_frame:
+        assert removed[0] == pytest.approx(1 - (0.25 + 1) / 2, abs=1e-6)  # the full lamp until then

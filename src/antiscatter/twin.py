@@ -40,6 +40,7 @@ from .detection import make_detector
 from .detections import Detections
 from .pattern import render_pattern, scale_mapping
 from .simulate import make_scene
+from .tracking import Prediction
 
 __all__ = ["TwinGeometry", "TwinRun", "simulate_loop", "default_runs", "STRATEGIES", "MAPPINGS"]
 
@@ -117,6 +118,7 @@ class TwinRun:
     mapping: str = "calibrated"
     strategy: str = "none"
     predict: bool = False
+    per_refresh: bool = True
     dim_level: float = 0.2
     flash_level: float = 0.25
     margin_px: float = 2.0
@@ -209,6 +211,20 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
     on_scene = 0.0
     scene_samples = 0
     series = []
+    def _process(image: np.ndarray, t0: float) -> tuple[float, Any]:
+        """The system under test on one exposure: (time its pattern goes on, pattern or prediction)."""
+        found = detector.detect(image)
+        ready = t0 + geometry.exposure_s + latency
+        on_at = math.ceil(ready / sub_s - 1e-9) * sub_s
+        if tracker is not None:
+            tracker.update(found, t0 + geometry.exposure_s / 2)
+            if run.predict and run.per_refresh:
+                return on_at, tracker.snapshot()
+            holes = tracker.holes(on_at + sub_s / 2 if run.predict else t0 + geometry.exposure_s / 2)
+        else:
+            holes = found
+        return on_at, _holes_pattern(holes, geometry, run, camera_mapping, buffer, calibration)
+
     for k in range(frames):
         if k:
             scene.step()
@@ -222,7 +238,6 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
         in_field = (u >= 0) & (u < pw) & (v >= 0) & (v < ph) & (p["Z"] > 0)
         # only what the projector -- the vehicle's lamp -- can light counts
         weight = scene.full_light_brightness() * visible * in_field
-        exposure_light = None
         frame_on = np.zeros(len(u))
         frame_scene = 0.0
         for j in range(sub_per_frame):
@@ -233,16 +248,27 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                 shown = full
             elif run.strategy == "flash" and j == 0:
                 shown = flash  # the detection flash, timed to the exposure
+            elif isinstance(displayed, Prediction):  # holes predicted for this refresh's own time
+                shown = _holes_pattern(displayed.holes(ts + sub_s / 2), geometry, run, camera_mapping, buffer,
+                                       calibration)
             else:
                 shown = displayed
-            particle_light = _mean_over_discs(shown, u, v, np.maximum(rp, 0.5))
+            # the scene's state is the frame's mid-exposure; particles keep moving through the
+            # frame period, so each refresh lights them where they are in its middle
+            q = scene.particles(ahead_s=j * sub_s + sub_s / 2 - geometry.exposure_s / 2)
+            su, sv = geometry.to_projector(q["X"], q["Y"], q["Z"])
+            particle_light = _mean_over_discs(shown, su, sv, np.maximum(rp, 0.5))
             frame_on += particle_light
             # the background plane: the share of the camera's view that is lit
             bg = cv2.warpPerspective(shown, inverse_bg, geometry.camera_size, flags=cv2.INTER_NEAREST,
                                      borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
             frame_scene += float(bg[lit_area].sum()) / lit_pixels
-            if j == 0:  # the exposure sits at the start of the frame, inside the first sub-frame
-                exposure_light = (particle_light, bg)
+            if j == 0 and detector is not None:
+                # the exposure sits at the start of the frame, inside the first refresh; its pattern
+                # may go on at a later refresh of this same frame
+                exposure_light = (_mean_over_discs(shown, u, v, np.maximum(rp, 0.5)), bg)
+                queue.append(_process(scene.render(light=exposure_light), t0))
+                queue.sort(key=lambda item: item[0])
         frame_on /= sub_per_frame
         frame_scene /= sub_per_frame
         on_particles += float((weight * frame_on).sum())
@@ -252,20 +278,6 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
         total = float(weight.sum())
         series.append({"frame": k, "removed": 1 - float((weight * frame_on).sum()) / total if total else float("nan"),
                        "kept": frame_scene})
-        if detector is None:
-            continue
-        image = scene.render(light=exposure_light)
-        found = detector.detect(image)
-        captured = t0 + geometry.exposure_s
-        ready = captured + latency
-        on_at = math.ceil(ready / sub_s - 1e-9) * sub_s
-        if tracker is not None:
-            tracker.update(found, t0 + geometry.exposure_s / 2)
-            holes = tracker.holes(on_at + sub_s / 2 if run.predict else t0 + geometry.exposure_s / 2)
-        else:
-            holes = found
-        queue.append((on_at, _holes_pattern(holes, geometry, run, camera_mapping, buffer, calibration)))
-        queue.sort(key=lambda item: item[0])
     removed = 1.0 - on_particles / off_particles if off_particles else 0.0
     return {"detector": "default" if run.detector == "contrast" else run.detector,
             "calibrated": run.detector is not None and run.mapping != "identity",

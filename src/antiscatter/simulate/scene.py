@@ -300,11 +300,19 @@ class RealisticScene:
         self._truth = None
 
     # -------------------------------------------------------------- rendering
-    def particles(self) -> dict[str, np.ndarray]:
-        """Every particle in camera coordinates: ids, X, Y, Z, R (metres; Z along the view)."""
+    def particles(self, ahead_s: float = 0.0) -> dict[str, np.ndarray]:
+        """Every particle in camera coordinates: ids, X, Y, Z, R (metres; Z along the view).
+
+        ahead_s: where they will be that many seconds after the current frame's
+        start, moving at their present velocity (0 <= ahead_s <= one frame period).
+        """
         s = self._state
-        return {"ids": s["ids"].copy(), "X": s["X"].copy(), "Y": s["Y"].copy(), "Z": s["Z"].copy(),
-                "R": s["R"].copy()}
+        if ahead_s:
+            vx, vy = self._velocity()
+            x, y = s["X"] + vx * ahead_s, s["Y"] + vy * ahead_s
+        else:
+            x, y = s["X"].copy(), s["Y"].copy()
+        return {"ids": s["ids"].copy(), "X": x, "Y": y, "Z": s["Z"].copy(), "R": s["R"].copy()}
 
     def _lamp_gain(self) -> np.ndarray:
         """(N, 3) light each particle sends back under the full lamp on its axis: inverse square,

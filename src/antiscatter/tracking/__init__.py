@@ -2,9 +2,10 @@
 
 :class:`Tracker` is the one stateful object: call ``update(detections,
 timestamp)`` every frame, even with none; ask ``holes(at)`` for where the
-particles will be when the light is on.
+particles will be when the light is on, or ``snapshot()`` for a frozen
+:class:`Prediction` that gives holes for each projector refresh's own time.
 """
 
-from .kalman import Tracker, Tracks
+from .kalman import Prediction, Tracker, Tracks
 
-__all__ = ["Tracker", "Tracks"]
+__all__ = ["Tracker", "Tracks", "Prediction"]

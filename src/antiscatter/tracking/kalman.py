@@ -25,7 +25,7 @@ import numpy as np
 from ..assignment import match
 from ..detections import Detections
 
-__all__ = ["Tracker", "Tracks"]
+__all__ = ["Tracker", "Tracks", "Prediction"]
 
 
 
@@ -185,11 +185,38 @@ class Tracker:
         predicted position, at most ``max_growth`` pixels.  Tracks not yet
         confirmed -- new particles -- get a hole where they were seen.
         """
+        return self.snapshot().holes(at, uncertainty_sigma=uncertainty_sigma, max_growth=max_growth)
+
+    def snapshot(self) -> "Prediction":
+        """The tracks as they are now, frozen: holes for any later time, from another thread."""
+        return Prediction(self.x.copy(), self.pp.copy(), self.pv.copy(), self.vv.copy(), self.ids.copy(),
+                          self.hits >= self.confirm_hits, self.timestamp, self.accel_noise)
+
+
+@dataclass(frozen=True, eq=False)
+class Prediction:
+    """A frozen copy of the tracks after one update, to draw holes for any time after it.
+
+    The output side can ask it for every projector refresh, each for its own
+    display time, while the tracker goes on with later frames.
+    """
+
+    x: np.ndarray
+    pp: np.ndarray
+    pv: np.ndarray
+    vv: np.ndarray
+    ids: np.ndarray
+    confirmed: np.ndarray
+    timestamp: float | None
+    accel_noise: float
+
+    def holes(self, at: float, *, uncertainty_sigma: float = 2.0, max_growth: float = 6.0) -> Detections:
+        """Where every particle will be at time ``at`` (seconds); see :meth:`Tracker.holes`."""
         n = len(self.x)
         if n == 0 or self.timestamp is None:
             return Detections.empty()
         dt = max(0.0, at - self.timestamp)
-        confirmed = self.hits >= self.confirm_hits
+        confirmed = self.confirmed
         centres = self.x[:, :2] + np.where(confirmed[:, None], self.x[:, 2:4] * dt, 0.0)
         q = self.accel_noise ** 2
         pp = self.pp + 2 * dt * self.pv + dt * dt * self.vv + q * dt ** 4 / 4  # predicted position variance
