@@ -18,6 +18,14 @@ on the simulator, against its true depths:
    lower bound), and the epipolar segment the p10..p90 interval leaves at the
    given baseline, against the full near..far segment.
 
+A second cue cancels albedo, size and distance: a coded flash.  Even frames
+are exposed under a uniform flash, odd ones under a ramp across the projector's
+columns, level * (floor + (1 - floor) * u / (W - 1)); the ratio of a particle's
+brightness in a ramp frame to the frame before gives the column u that lights
+it, hence its disparity.  The second table reports |u error| in projector
+pixels, from the detector's peaks and from the simulator's true peaks (the
+best any brightness measure could do while particles spin and wobble).
+
     python scripts/depth_from_brightness.py [--frames 60] [--baseline-m 0.12]
 """
 
@@ -92,6 +100,56 @@ def main() -> None:
         segment = fb * (1 / z_lo - 1 / z_hi)
         print(f"{preset:<9}{int(test.sum()):>8}{saturated.mean():>7.2f}{p10:>+8.2f}{p50:>+8.2f}{p90:>+8.2f}"
               f"{(np.abs(rel) < 0.2).mean():>8.2f}{np.median(segment):>21.0f}{full / np.median(segment):>11.1f}")
+    print()
+    print("coded flash (uniform, then ramp): |projector column error| px, median and p80")
+    print(f"{'preset':<9}{'pairs':>7}{'detected':>10}{'p80':>7}{'true peaks':>12}{'p80':>7}")
+    for preset in args.presets.split(","):
+        e = ramp_errors(preset, args.frames, geometry)
+        d, t = e["detected"], e["true"]
+        print(f"{preset:<9}{len(d):>7}{np.median(d):>10.0f}{np.percentile(d, 80):>7.0f}"
+              f"{np.median(t):>12.0f}{np.percentile(t, 80):>7.0f}")
+
+
+def ramp_errors(preset: str, frames: int, geometry: TwinGeometry, *, floor: float = 0.2,
+                level: float = 0.25) -> dict[str, np.ndarray]:
+    """|u estimate - true u| (projector px) per particle seen in a uniform frame and the ramp frame after it."""
+    import cv2
+
+    width = geometry.projector_size[0]
+    scene = make_scene(preset, rng=np.random.default_rng(1), size=geometry.camera_size)
+    detectors = {"uniform": make_detector("contrast"), "ramp": make_detector("contrast")}  # a background each
+    ramp = np.tile((level * (floor + (1 - floor) * np.arange(width) / (width - 1))).astype(np.float32),
+                   (geometry.projector_size[1], 1))
+    to_camera = np.linalg.inv(geometry.plane_mapping(geometry.background_m))
+    backgrounds = {"uniform": np.full(geometry.camera_size[::-1], level, np.float32),
+                   "ramp": cv2.warpPerspective(ramp, to_camera, geometry.camera_size, flags=cv2.INTER_LINEAR)}
+    previous: dict[str, dict[int, float]] = {"detected": {}, "true": {}}
+    errors: dict[str, list[float]] = {"detected": [], "true": []}
+    for k in range(frames):
+        scene.step()
+        p = scene.particles()
+        u, _ = geometry.to_projector(p["X"], p["Y"], p["Z"])
+        kind = "uniform" if k % 2 == 0 else "ramp"
+        factor = (np.full(len(u), level) if kind == "uniform"
+                  else level * (floor + (1 - floor) * np.clip(u, 0, width - 1) / (width - 1)))
+        image = scene.render(light=(factor, backgrounds[kind]))
+        truth = scene.truth()
+        found = detectors[kind].detect(image)
+        if k < 10 or not len(found) or not len(truth.ids):
+            continue
+        distance, index = cKDTree(truth.centres).query(found.centres)
+        ok = distance < np.maximum(truth.radii[index], 2.0)
+        ids = truth.ids[index[ok]].tolist()
+        where = {pid: j for j, pid in enumerate(p["ids"].tolist())}
+        for source, values in (("detected", found.scores[ok]), ("true", truth.peaks[index[ok]])):
+            if kind == "uniform":
+                previous[source] = dict(zip(ids, values.tolist()))
+                continue
+            for pid, value in zip(ids, values.tolist()):
+                if pid in previous[source] and pid in where and previous[source][pid] > 0:
+                    u_est = (width - 1) * (value / previous[source][pid] - floor) / (1 - floor)
+                    errors[source].append(abs(u_est - u[where[pid]]))
+    return {k: np.asarray(v) for k, v in errors.items()}
 
 
 if __name__ == "__main__":
