@@ -249,3 +249,77 @@ def test_output_in_a_missing_folder_is_refused_before_any_work(tmp_path, cli, ar
     assert result.code == 2
     assert len(result.err.strip().splitlines()) == 1 and "does not exist" in result.err
     assert not (tmp_path / "missing").exists() and not (tmp_path / "sim").exists()
+
+
+def _disc_frames(tmp_path, count=4):
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i in range(count):
+        cv2.imwrite(str(frames / f"{i}.png"), draw_discs((160, 120), [(30.0 + 3 * i, 40.0, 5.0)]))
+    return frames
+
+
+def test_strategy_dim_draws_holes_at_the_dim_level(tmp_path, cli):
+    result = cli("run", str(_disc_frames(tmp_path)), "--strategy", "dim", "--dim-level", "0.2",
+                 "--output", f"files:{tmp_path / 'pat'}")
+    assert result.code == 0, result.err
+    pattern = cv2.imread(str(tmp_path / "pat" / "0.png"), cv2.IMREAD_UNCHANGED)
+    # particle (30, 40) in a 160x120 frame -> (240, 266.7) on the 1280x800 projector
+    assert pattern[267, 240] == 51 and pattern[10, 10] == 255
+    assert set(np.unique(pattern)) == {51, 255}
+
+
+def test_strategy_flash_shows_a_uniform_flash_before_every_capture(tmp_path, cli):
+    video = tmp_path / "light.mkv"
+    result = cli("run", str(_disc_frames(tmp_path)), "--strategy", "flash", "--flash-level", "0.5",
+                 "--output", f"files:{tmp_path / 'pat'}", "--output", f"files:{video}")
+    assert result.code == 0, result.err
+    for i in range(4):
+        flash = cv2.imread(str(tmp_path / "pat" / f"flash-{i}.png"), cv2.IMREAD_UNCHANGED)
+        assert flash.shape == (800, 1280) and (flash == 128).all()
+        pattern = cv2.imread(str(tmp_path / "pat" / f"{i}.png"), cv2.IMREAD_UNCHANGED)
+        assert pattern.min() == 0 and pattern.max() == 255
+    with av.open(str(video)) as container:  # the light over time: flash, pattern, flash, pattern...
+        shown = [f.to_ndarray(format="gray") for f in container.decode(video=0)]
+    assert len(shown) == 9  # the source's end is found by the read after the last flash
+    assert all((s == 128).all() for s in shown[0::2]) and all(s.min() == 0 for s in shown[1::2])
+
+
+def test_strategy_flash_skips_frames_exposed_before_the_flash():
+    from antiscatter.config import load_config
+    from antiscatter.runtime import run
+    from antiscatter.sources.base import Frame, FrameSource
+
+    class StaleCamera(FrameSource):
+        """A free-running camera: every other frame was exposed before it was asked for."""
+        live, size = True, (160, 120)
+
+        def __init__(self):
+            self.count = 0
+
+        def read(self):
+            self.count += 1
+            if self.count > 12:
+                return None
+            stamp = 0 if self.count % 2 else FrameSource.now_ns()
+            return Frame(draw_discs(self.size, [(40.0, 40.0, 4.0)]), self.count - 1, stamp)
+
+    config = load_config(overrides={"light": {"strategy": "flash"}, "output": {"outputs": ("none",)}})
+    camera = StaleCamera()
+    summary = run(config, source=camera, log=__import__("io").StringIO(), out=__import__("io").StringIO())
+    assert summary.frames == 6 and summary.dropped == 6  # each stale frame skipped, the fresh one used
+
+
+def test_strategy_coast_tracks_and_flash_needs_single_mode(tmp_path, cli):
+    result = cli("run", str(_disc_frames(tmp_path)), "--strategy", "coast", "--output", "none",
+                 "--detections", str(tmp_path / "d.csv"))
+    assert result.code == 0, result.err
+    assert "track_id" in (tmp_path / "d.csv").open().readline()
+    bad = cli("run", "--strategy", "flash", "--mode", "threads", "--frames", "3", "--output", "none")
+    assert bad.code == 2 and "flash needs run.mode single" in bad.err and "Traceback" not in bad.err
+    bad = cli("run", "--dim-level", "1.5", "--frames", "3", "--output", "none")
+    assert bad.code == 2 and "light.dim_level: got 1.5, allowed a number 0..1" in bad.err
+    config = tmp_path / "c.toml"
+    config.write_text('[light]\nstrategy = "strobe"\n')
+    bad = cli("run", "--config", str(config), "--frames", "3", "--output", "none")
+    assert bad.code == 2 and "light.strategy: got 'strobe', allowed none, dim, flash, coast" in bad.err

@@ -76,6 +76,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --track: draw holes where particles were, not where they will be")
     g.add_argument("--latency-ms", type=float, help="with --track: predict over this capture-to-light time "
                    "(default: the measured one)")
+    g = run.add_argument_group("light strategy (against the closed-loop catch; see antiscatter twin)")
+    g.add_argument("--strategy", choices=("none", "dim", "flash", "coast"),
+                   help="none (default): holes from each frame's detections; dim: holes at --dim-level so "
+                        "darkened particles stay visible; flash: a uniform --flash-level frame before each "
+                        "capture, the pattern the rest of the time (mode single); coast: tracked holes stay on "
+                        "particles that went dark (turns --track on)")
+    g.add_argument("--dim-level", type=float, help="light left in dim holes, 0..1 (default 0.2)")
+    g.add_argument("--flash-level", type=float, help="brightness of the detection flash, 0..1 (default 0.25)")
     g = run.add_argument_group("pattern")
     g.add_argument("--projector-size", metavar="WxH", help="projector resolution (default 1280x800)")
     g.add_argument("--margin", type=float, help="pixels added to every hole's radius (default 0)")
@@ -641,6 +649,7 @@ def _run_config(args: argparse.Namespace):
         "detector": {"name": args.detector},
         "pattern": {"margin": args.margin},
         "track": {"enabled": args.track, "predict": args.predict, "latency_ms": args.latency_ms},
+        "light": {"strategy": args.strategy, "dim_level": args.dim_level, "flash_level": args.flash_level},
         "output": {"outputs": tuple(args.output) if args.output else None},
         "run": {"frames": args.frames, "fps": args.fps, "nice": args.nice,
                 "metrics": args.metrics, "detections": args.detections, "mode": args.mode,

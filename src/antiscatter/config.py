@@ -2,7 +2,7 @@
 
 A TOML file (``--config``) has the sections ``[source]``, ``[detector]`` (with
 a sub-table ``[detector.<name>]`` holding that detector's parameters),
-``[pattern]``, ``[output]``, ``[run]`` and ``[track]``; their keys are the fields below.
+``[pattern]``, ``[output]``, ``[run]``, ``[track]`` and ``[light]``; their keys are the fields below.
 Command-line flags set the same fields and win over the file.  Unknown keys
 and bad values are rejected naming the key, the value and what is allowed.
 """
@@ -13,6 +13,7 @@ import math
 import tomllib
 import types
 import typing
+import dataclasses
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -22,7 +23,7 @@ import numpy as np
 from .errors import UsageError
 
 __all__ = ["SourceConfig", "DetectorConfig", "PatternConfig", "OutputConfig", "RunConfig", "TrackConfig",
-           "Config", "load_config", "build_section", "parse_param", "parse_size"]
+           "LightConfig", "STRATEGIES", "Config", "load_config", "build_section", "parse_param", "parse_size"]
 
 
 def parse_size(text: str, *, key: str = "size") -> tuple[int, int]:
@@ -145,6 +146,35 @@ class TrackConfig:
             raise ValueError(f"max_misses: got {self.max_misses}, allowed >= 0")
 
 
+STRATEGIES = ("none", "dim", "flash", "coast")
+
+
+@dataclass(frozen=True)
+class LightConfig:
+    """How the lamp works around the closed-loop catch (a particle dark in its hole is
+    lost by the next frame's detector; see ``antiscatter twin``).
+
+    strategy: ``none`` (holes from this frame's detections), ``dim`` (holes at
+        ``dim_level`` of full light, so dimmed particles stay visible), ``flash`` (before
+        each capture the lamp shows a uniform ``flash_level`` frame and the camera is read
+        under it; the pattern the rest of the time; needs mode ``single``) or ``coast``
+        (tracked holes stay on particles that went dark; turns tracking on).
+    dim_level, flash_level: fractions of full light, 0..1.
+    """
+
+    strategy: str = "none"
+    dim_level: float = 0.2
+    flash_level: float = 0.25
+
+    def __post_init__(self) -> None:
+        if self.strategy not in STRATEGIES:
+            raise ValueError(f"strategy: got {self.strategy!r}, allowed {', '.join(STRATEGIES)}")
+        for key in ("dim_level", "flash_level"):
+            value = getattr(self, key)
+            if not (math.isfinite(value) and 0 <= value <= 1):
+                raise ValueError(f"{key}: got {value}, allowed a number 0..1")
+
+
 @dataclass(frozen=True)
 class OutputConfig:
     """outputs: light outputs, any of framebuffer[:/dev/fbN], window, files:PATH, none, auto."""
@@ -220,10 +250,11 @@ class Config:
     output: OutputConfig = field(default_factory=OutputConfig)
     run: RunConfig = field(default_factory=RunConfig)
     track: TrackConfig = field(default_factory=TrackConfig)
+    light: LightConfig = field(default_factory=LightConfig)
 
 
 _SECTIONS = {"source": SourceConfig, "detector": DetectorConfig, "pattern": PatternConfig,
-             "output": OutputConfig, "run": RunConfig, "track": TrackConfig}
+             "output": OutputConfig, "run": RunConfig, "track": TrackConfig, "light": LightConfig}
 
 
 def _type_name(tp: Any) -> str:
@@ -339,9 +370,16 @@ def load_config(path: str | Path | None = None, overrides: dict[str, dict[str, A
                                prefix=f"detector.{detector_name}")
     except UsageError as exc:
         raise UsageError(f"{where}: {exc}" if path is not None and not detector_overrides else str(exc)) from None
+    light = sections["light"]
+    if light.strategy == "flash" and sections["run"].mode != "single":
+        raise UsageError(f"light.strategy: flash needs run.mode single (the flash, the capture and the pattern "
+                         f"take turns), got mode {sections['run'].mode}")
+    track = sections["track"]
+    if light.strategy == "coast" and not track.enabled:
+        track = dataclasses.replace(track, enabled=True)  # coasting is what the tracker does
     return Config(source=sections["source"], detector=sections["detector"], detector_params=params,
                   pattern=sections["pattern"], output=sections["output"], run=sections["run"],
-                  track=sections["track"])
+                  track=track, light=light)
 
 
 def parse_param(text: str, params_cls: type, *, detector: str) -> tuple[str, Any]:

@@ -49,8 +49,8 @@ def map_to_projector(detections: Detections, mapping: np.ndarray) -> tuple[np.nd
 
 def render_pattern(detections: Detections, *, size: tuple[int, int] = (1280, 800),
                    mapping: np.ndarray | None = None, margin: float = 0.0,
-                   out: np.ndarray | None = None) -> np.ndarray:
-    """Draw the projector pattern: white (255) with black filled discs at the particles.
+                   out: np.ndarray | None = None, hole: int = 0) -> np.ndarray:
+    """Draw the projector pattern: white (255) with filled discs of ``hole`` (0 = black) at the particles.
 
     Parameters
     ----------
@@ -59,6 +59,7 @@ def render_pattern(detections: Detections, *, size: tuple[int, int] = (1280, 800
     mapping : (3, 3) camera-to-projector homography; identity when None.
     margin : pixels added to every hole's radius (in projector pixels).
     out : (height, width) uint8 buffer to draw into (reused between frames).
+    hole : grey level of the holes, 0..255 (above 0 for dim holes).
 
     Returns
     -------
@@ -80,5 +81,5 @@ def render_pattern(detections: Detections, *, size: tuple[int, int] = (1280, 800
     circle, line = cv2.circle, cv2.LINE_8
     for x, y, r in zip(cx[ok].astype(np.int64).tolist(), cy[ok].astype(np.int64).tolist(),
                        cr[ok].astype(np.int64).tolist()):
-        circle(out, (x, y), r, 0, -1, line, _SHIFT)
+        circle(out, (x, y), r, hole, -1, line, _SHIFT)
     return out

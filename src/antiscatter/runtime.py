@@ -288,6 +288,10 @@ class _Pipeline:
         self.buffers = [np.empty((height, width), np.uint8) for _ in range(buffers)]
         self.next_buffer = 0
         self.latency_estimate = 0.0  # seconds, running mean of the measured capture-to-light time
+        light = config.light
+        self.hole_level = round(light.dim_level * 255) if light.strategy == "dim" else 0
+        self.flash_image = (np.full((height, width), round(light.flash_level * 255), np.uint8)
+                            if light.strategy == "flash" else None)
         self.columns = columns
         self.index_of = {c: i for i, c in enumerate(columns)}
         self.stage_columns = [f"{st.label} Duration (s)" for st in detector.stages]
@@ -337,10 +341,19 @@ class _Pipeline:
         buffer = self.buffers[self.next_buffer]
         self.next_buffer = (self.next_buffer + 1) % len(self.buffers)
         rec.pattern = render_pattern(rec.pattern, size=self.projector_size, mapping=self.mapping,
-                                     margin=self.config.pattern.margin, out=buffer)
+                                     margin=self.config.pattern.margin, out=buffer, hole=self.hole_level)
         rec.t_pattern = self.clock()
         rec.t_processed = t_start
         return rec
+
+    def flash(self) -> int:
+        """Show the uniform detection flash on every output; the time it went on (monotonic ns)."""
+        image = self.flash_image
+        if not self.light_on:
+            image = np.zeros_like(image)
+        for output in self.outputs:
+            output.flash(image)
+        return time.monotonic_ns()
 
     def emit(self, rec: _Record, dropped: int) -> bool:
         """Show the pattern, log the frame; True when an output asked to stop."""
@@ -554,19 +567,36 @@ def _finished(summary: RunSummary, stop: "StopFlag", rc: Any) -> bool:
     return False
 
 
+#: frames a live source may deliver from before the flash went on (exposed under the last pattern)
+MAX_STALE_FRAMES = 3
+
+
 def _run_single(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: Any) -> None:
-    """One thread: pace, capture, process, show -- the report's design."""
+    """One thread: pace, capture, process, show -- the report's design.
+
+    With the ``flash`` strategy each turn starts with the detection flash; a live
+    source's frames exposed before it went on (the camera free-runs) are skipped
+    and counted as dropped, so the detector sees particles under uniform light.
+    """
     summary = pipeline.summary
     pacer = Pacer(rc.fps)
+    flashing = pipeline.flash_image is not None
+    live = getattr(source, "live", False)
     while True:
         if _finished(summary, stop, rc):
             return
         pacer.wait()
+        flash_on = pipeline.flash() if flashing else 0
         frame, t0, t1 = _timed_read(source)
+        stale = 0
+        while flashing and live and frame is not None and frame.timestamp_ns < flash_on \
+                and stale < MAX_STALE_FRAMES:
+            stale += 1
+            frame, t0, t1 = _timed_read(source)
         if frame is None:
             summary.stop_reason = "source ended"
             return
-        if pipeline.emit(pipeline.process(frame, t0, t1), 0):
+        if pipeline.emit(pipeline.process(frame, t0, t1), stale):
             summary.stop_reason = "stopped from the window (e)"
             return
 

@@ -14,7 +14,8 @@ class LightOutput:
     """Base of every light output.
 
     ``show(pattern, frame, detections)`` hands one projector pattern ((H, W)
-    uint8, 255 = light) to the output; ``exit_requested`` turns true when the
+    uint8, 255 = light) to the output; ``flash(image)`` the detection flash
+    shown before a capture; ``exit_requested`` turns true when the
     user asked to stop from the output (``e`` in a window); ``close()`` leaves
     files complete and devices released.  Outputs are context managers.
     """
@@ -25,6 +26,10 @@ class LightOutput:
     def show(self, pattern: np.ndarray, frame: Frame | None = None,
              detections: Detections | None = None) -> None:
         raise NotImplementedError
+
+    def flash(self, image: np.ndarray) -> None:
+        """Show the uniform detection flash (``light.strategy = "flash"``); by default like a pattern."""
+        self.show(image)
 
     def close(self) -> None:
         pass

@@ -37,8 +37,15 @@ class PngFolderOutput(LightOutput):
              detections: Detections | None = None) -> None:
         index = frame.index if frame is not None else self._count
         self._count += 1
-        path = self.folder / f"{index}.png"
-        if not cv2.imwrite(str(path), pattern, [cv2.IMWRITE_PNG_COMPRESSION, 1]):
+        self._write(self.folder / f"{index}.png", pattern)
+
+    def flash(self, image: np.ndarray) -> None:
+        """The flash before frame N's capture goes to ``flash-N.png``."""
+        self._write(self.folder / f"flash-{self._count}.png", image)
+
+    @staticmethod
+    def _write(path: Path, image: np.ndarray) -> None:
+        if not cv2.imwrite(str(path), image, [cv2.IMWRITE_PNG_COMPRESSION, 1]):
             raise OSError(f"{path}: could not be written")
 
 
