@@ -322,4 +322,13 @@ def test_strategy_coast_tracks_and_flash_needs_single_mode(tmp_path, cli):
     config = tmp_path / "c.toml"
     config.write_text('[light]\nstrategy = "strobe"\n')
     bad = cli("run", "--config", str(config), "--frames", "3", "--output", "none")
-    assert bad.code == 2 and "light.strategy: got 'strobe', allowed none, dim, flash, coast" in bad.err
+    assert bad.code == 2 and "light.strategy: got 'strobe', allowed auto, none, dim, flash, coast" in bad.err
+
+
+def test_strategy_auto_coasts_on_the_camera_only():
+    from antiscatter.config import load_config
+
+    on_vehicle = load_config(overrides={"source": {"spec": "camera"}})
+    assert on_vehicle.light.strategy == "coast" and on_vehicle.track.enabled
+    replay = load_config()
+    assert replay.light.strategy == "none" and not replay.track.enabled

@@ -77,8 +77,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--latency-ms", type=float, help="with --track: predict over this capture-to-light time "
                    "(default: the measured one)")
     g = run.add_argument_group("light strategy (against the closed-loop catch; see antiscatter twin)")
-    g.add_argument("--strategy", choices=("none", "dim", "flash", "coast"),
-                   help="none (default): holes from each frame's detections; dim: holes at --dim-level so "
+    g.add_argument("--strategy", choices=("auto", "none", "dim", "flash", "coast"),
+                   help="auto (default): coast with the camera, else none; none: holes from each frame's "
+                        "detections; dim: holes at --dim-level so "
                         "darkened particles stay visible; flash: a uniform --flash-level frame before each "
                         "capture, the pattern the rest of the time (mode single); coast: tracked holes stay on "
                         "particles that went dark (turns --track on)")

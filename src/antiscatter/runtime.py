@@ -508,7 +508,7 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
                     + (f" over {tc.latency_ms:g} ms" if tc.predict and tc.latency_ms >= 0 else ""))
         print(f"antiscatter run: source {config.source.spec} ({source.size[0]}x{source.size[1]}), "
               f"detector {detector.name}{tracking}, pattern {config.pattern.width}x{config.pattern.height}, "
-              f"output {names}, mode {rc.mode}", file=log)
+              f"output {names}, mode {rc.mode}, light strategy {config.light.strategy}", file=log)
         pipeline = _Pipeline(config, detector, tracker, source, outputs, metrics_writer, detections_writer,
                              columns, summary, buffers=1 if rc.mode == "single" else 3)
         stack.callback(pipeline.stop_recording, wait=True)  # a recording is finished however the run ends

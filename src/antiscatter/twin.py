@@ -239,6 +239,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
         # only what the projector -- the vehicle's lamp -- can light counts
         weight = scene.full_light_brightness() * visible * in_field
         frame_on = np.zeros(len(u))
+        frame_full = np.zeros(len(u))
         frame_scene = 0.0
         for j in range(sub_per_frame):
             ts = t0 + j * sub_s
@@ -259,6 +260,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
             su, sv = geometry.to_projector(q["X"], q["Y"], q["Z"])
             particle_light = _mean_over_discs(shown, su, sv, np.maximum(rp, 0.5))
             frame_on += particle_light
+            frame_full += _mean_over_discs(full, su, sv, np.maximum(rp, 0.5))  # what the full lamp gives
             # the background plane: the share of the camera's view that is lit
             bg = cv2.warpPerspective(shown, inverse_bg, geometry.camera_size, flags=cv2.INTER_NEAREST,
                                      borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
@@ -271,11 +273,12 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                 queue.sort(key=lambda item: item[0])
         frame_on /= sub_per_frame
         frame_scene /= sub_per_frame
+        frame_full /= sub_per_frame
         on_particles += float((weight * frame_on).sum())
-        off_particles += float(weight.sum())
+        off_particles += float((weight * frame_full).sum())
         on_scene += frame_scene
         scene_samples += 1
-        total = float(weight.sum())
+        total = float((weight * frame_full).sum())
         series.append({"frame": k, "removed": 1 - float((weight * frame_on).sum()) / total if total else float("nan"),
                        "kept": frame_scene})
     removed = 1.0 - on_particles / off_particles if off_particles else 0.0
