@@ -123,7 +123,8 @@ def test_static_texture_is_learnt_and_stops_being_detected():
 @pytest.mark.parametrize("bad, message", [({"k": 0}, "k: got 0, allowed > 0"),
                                           ({"cell": 5}, "cell: got 5, allowed an even integer >= 4"),
                                           ({"factor": 3}, "factor: got 3, allowed 0 (automatic), 1 or 2"),
-                                          ({"memory": -1}, "memory: got -1, allowed >= 0")])
+                                          ({"memory": -1}, "memory: got -1, allowed >= 0"),
+                                          ({"lone_k": -1}, "lone_k: got -1, allowed >= 0 (0 = off)")])
 def test_bad_parameters(bad, message):
     with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)")):
         ContrastParams(**bad)
@@ -147,17 +148,39 @@ def test_three_discs_in_a_row_and_two_overlapping_with_a_dip_are_split():
     assert len(found) == len(discs)
 
 
-def test_background_model_updates_one_band_per_frame():
+def test_background_model_updates_one_band_per_frame_after_the_warm_up():
     from antiscatter.detection.contrast import BackgroundModel
 
     model = BackgroundModel(cell=8, memory=20, bands=4)
     first = np.full((120, 160), 40, np.uint8)
-    base, _ = model.estimate(first)
-    before = base.copy()
+    model.estimate(first)
+    none = np.zeros_like(first)
+    before = model.base.copy()
+    model.learn(np.full_like(first, 50), none)
+    assert (model.base > before).all()  # warming up: every band learns every frame
+    for _ in range(BackgroundModel.WARMUP - 1):  # WARMUP frames in all
+        model.learn(first, none)
+    before = model.base.copy()
     brighter = np.full_like(first, 60)
-    model.learn(brighter, np.zeros_like(first))
+    model.learn(brighter, none)
     changed = np.flatnonzero((model.base != before).any(axis=1))
     assert len(changed) and changed.min() == 0 and changed.max() < 40  # the top band only
     for _ in range(3):
-        model.learn(brighter, np.zeros_like(first))
+        model.learn(brighter, none)
     assert (model.base > before).all()  # one cycle of bands covers the frame
+
+
+def test_a_lone_pixel_needs_lone_k_noise_units():
+    from antiscatter.detection.contrast import measure
+
+    excess = np.zeros((60, 80), np.uint8)
+    excess[10, 10] = 9    # alone, 4.5 noise units: a noise spike
+    excess[30, 30] = 13   # alone, 6.5 units
+    excess[50, 50:52] = 9  # two pixels at 4.5 units: light that spreads
+    noise = np.full((4, 5), 2.0, np.float32)
+    components = {"labels": np.array([0, 1, 2, 2]), "x": np.array([10, 30, 50, 51]),
+                  "y": np.array([10, 30, 50, 50]), "count": 3}
+    kw = dict(halo=1.0, max_radius=48.0, split=False, frame_width=80, factor=1)
+    kept = measure(components, excess, noise, lone_k=5.0, **kw)
+    assert sorted(np.rint(kept.centres[:, 0]).tolist()) == [30, 50]
+    assert len(measure(components, excess, noise, lone_k=0.0, **kw)) == 3

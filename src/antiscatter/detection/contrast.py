@@ -37,6 +37,7 @@ not backscatter (a 1 cm bubble 0.3 m from the lens is about 11 px at 800 px).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -64,6 +65,9 @@ class ContrastParams:
         width above that (default 48).
     split: split components with several intensity peaks (default true).
     factor: working resolution divisor, 1 or 2; 0 = 2 for frames 640 px wide or more, else 1 (default 0).
+    lone_k: a component of a single working pixel must exceed this many noise units (a lone noise
+        spike is the commonest false alarm; a particle's light spreads over its neighbours); 0 = off
+        (default 5: a Gaussian spike that high comes once in 3.5 million pixels).
     """
 
     k: float = 4.0
@@ -74,6 +78,7 @@ class ContrastParams:
     max_radius: float = 48.0
     split: bool = True
     factor: int = 0
+    lone_k: float = 5.0
 
     def __post_init__(self) -> None:
         if self.factor not in (0, 1, 2):
@@ -88,6 +93,8 @@ class ContrastParams:
             raise ValueError(f"memory: got {self.memory}, allowed >= 0 (0 = single-frame)")
         if self.halo < 0:
             raise ValueError(f"halo: got {self.halo}, allowed >= 0")
+        if not (math.isfinite(self.lone_k) and self.lone_k >= 0):
+            raise ValueError(f"lone_k: got {self.lone_k}, allowed >= 0 (0 = off)")
         if not self.max_radius > 0:
             raise ValueError(f"max_radius: got {self.max_radius}, allowed > 0")
 
@@ -163,6 +170,7 @@ class BackgroundModel:
         self._persist: np.ndarray | None = None
         self._updates = np.zeros(max(self.bands, 1), np.int64)
         self._next = 0
+        self._frames = 0
 
     def _rows(self, band: int, height: int) -> tuple[int, int, int, int]:
         """Pixel rows [r0, r1) and coarse-cell rows [c0, c1) of ``band``: bands hold whole cell rows."""
@@ -206,6 +214,10 @@ class BackgroundModel:
                            interpolation=cv2.INTER_LINEAR)
         self.limit = cv2.convertScaleAbs(limit, beta=-0.4999)  # floor, saturated at 255
 
+    #: frames after a (re)start during which every band learns every frame, so the first
+    #: frames' static scene is absorbed in about PERSIST / 2 frames instead of PERSIST
+    WARMUP = 16
+
     def learn(self, half: np.ndarray, mask: np.ndarray) -> None:
         """Update one band from this frame (``mask``: uint8, 255 = particle candidate).
 
@@ -216,11 +228,37 @@ class BackgroundModel:
         then it is scene the first frames mistook for a particle (a bright pebble,
         a padding highlight) and learns at four times the rate.  The band's noise
         is measured too; the threshold map follows once every band has been.
+        During the first ``WARMUP`` frames every band learns every frame and
+        PERSIST / 2 frames suffice: everything static is still to be told apart.
         """
         if self.alpha == 0.0 or self.background is None:
             return
+        if self._previous is None or self._previous.shape != half.shape:
+            self._previous = half.copy()
+            self._persist = np.zeros(half.shape, np.uint8)
+            self._frames = 0
+            first = True
+        else:
+            first = False
+        warm = self._frames < self.WARMUP
+        self._frames += 1
+        if warm:
+            for band in range(self.bands):
+                self._learn_band(half, mask, band, first, per_update=1, needed=max(2, self.PERSIST // 2))
+            self._next = 0
+            self._update_limit(half.shape)
+            return
         band = self._next
         self._next = (band + 1) % self.bands
+        self._learn_band(half, mask, band, first, per_update=self.bands,
+                         needed=max(2, -(-self.PERSIST // self.bands)))
+        if self._next == 0:  # a whole cycle of bands: the noise map has been renewed
+            self._update_limit(half.shape)
+
+    def _learn_band(self, half: np.ndarray, mask: np.ndarray, band: int, first: bool, *, per_update: int,
+                    needed: int) -> None:
+        """Learn the rows of ``band``; ``per_update`` frames pass between its updates, ``needed``
+        steady updates make a "particle" scene."""
         h, w = half.shape
         r0, r1, c0, c1 = self._rows(band, h)
         if r1 <= r0:
@@ -230,18 +268,14 @@ class BackgroundModel:
         top, bottom = max(r0 - 1, 0), min(r1 + 1, h)
         particles = cv2.dilate(mask[top:bottom], None)[r0 - top:r0 - top + (r1 - r0)]
         updates = int(self._updates[band])
-        rate = min(1.0, max(self.alpha * self.bands, 1.0 / (updates + 2)))
+        rate = min(1.0, max(self.alpha * per_update, 1.0 / (updates + 2)))
         background = self.background[r0:r1]
-        if self._previous is None or self._previous.shape != half.shape:
-            self._previous = half.copy()
-            self._persist = np.zeros(half.shape, np.uint8)
-        else:
+        if not first:
             change = cv2.absdiff(frame, self._previous[r0:r1])
             steady = cv2.bitwise_and(cv2.compare(change, self.limit[r0:r1], cv2.CMP_LE), particles)
             persist = self._persist[r0:r1]
             cv2.add(persist, 1, dst=persist, mask=steady)
             cv2.bitwise_and(persist, steady, dst=persist)
-            needed = max(2, -(-self.PERSIST // self.bands))  # band updates, about PERSIST frames
             scene = cv2.compare(persist, needed, cv2.CMP_GE)
             cv2.accumulateWeighted(frame, background, min(1.0, 4 * rate), mask=scene)
             self._previous[r0:r1] = frame
@@ -249,8 +283,6 @@ class BackgroundModel:
         cv2.accumulateWeighted(frame, background, rate * 0.75, mask=cv2.bitwise_not(particles))
         cv2.convertScaleAbs(background, dst=self.base[r0:r1])
         self._updates[band] = updates + 1
-        if self._next == 0:  # a whole cycle of bands: the noise map has been renewed
-            self._update_limit(half.shape)
 
 
 def threshold_mask(half: np.ndarray, base: np.ndarray, limit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -290,10 +322,13 @@ def label(mask: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def measure(components: dict[str, np.ndarray], excess: np.ndarray, noise: np.ndarray, *,
-            halo: float, max_radius: float, split: bool, frame_width: int, factor: int = 2) -> Detections:
+            halo: float, max_radius: float, split: bool, frame_width: int, factor: int = 2,
+            lone_k: float = 0.0) -> Detections:
     """Centres (brightness-weighted) and covering radii of the components, in full-resolution pixels.
 
-    excess: uint8 light above the background; noise: the coarse noise map (for splitting).
+    excess: uint8 light above the background; noise: the coarse noise map (for splitting and
+    ``lone_k``: a component of one working pixel is kept only when its excess exceeds ``lone_k``
+    noise units -- a noise spike is almost always alone, a particle's light spreads; 0 = off).
     """
     n = components["count"]
     if n == 0:
@@ -313,12 +348,13 @@ def measure(components: dict[str, np.ndarray], excess: np.ndarray, noise: np.nda
     centres = np.column_stack([factor * cx + offset, factor * cy + offset])
     radii = factor * (far + 0.5) + halo  # the farthest pixel's far edge, plus the blur halo
     keep = (radii <= max_radius * max(1.0, frame_width / 800.0)) & (wsum > 0)
+    if lone_k > 0:
+        lone = np.flatnonzero(np.bincount(lab, minlength=n) == 1)
+        if len(lone):
+            px, py = np.rint(cx[lone]).astype(np.intp), np.rint(cy[lone]).astype(np.intp)
+            keep[lone] &= peak[lone] > lone_k * noise_at(noise, px, py, excess.shape)
     return Detections(centres[keep], radii[keep], scores=peak[keep])
 
-
-#: offsets of a 3x3 and a 5x5 neighbourhood as (dy, dx)
-_N3 = np.array([(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)])
-_N5 = np.array([(dy, dx) for dy in range(-2, 3) for dx in range(-2, 3)])
 
 
 def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, excess: np.ndarray,
@@ -541,7 +577,8 @@ def build_contrast(params: ContrastParams) -> Detector:
     def stage_measure(value):
         half, mask, excess, components = value
         found = measure(components, excess, model.noise, halo=params.halo, max_radius=params.max_radius,
-                        split=params.split, frame_width=state["width"], factor=state["factor"])
+                        split=params.split, frame_width=state["width"], factor=state["factor"],
+                        lone_k=params.lone_k)
         return half, mask, found
 
     def stage_update(value) -> Detections:
