@@ -118,3 +118,16 @@ def test_a_pattern_ready_within_the_frame_goes_on_at_the_next_refresh(exposure_s
     assert removed[first_dark_frame] == pytest.approx(1 - 0.25 / 2, abs=1e-6)
     if first_dark_frame:
         assert removed[0] == pytest.approx(1 - (0.25 + 1) / 2, abs=1e-6)  # the full lamp until then
+
+
+def test_scoreboard_twin_table_has_every_run_at_both_baselines(monkeypatch):
+    import antiscatter.twin as twin
+    from antiscatter.evaluate.report import _twin_rows
+
+    real = twin.simulate_loop
+    monkeypatch.setattr(twin, "simulate_loop", lambda run, **kw: real(run, **{**kw, "geometry": TwinGeometry(
+        camera_size=(160, 120), baseline_m=kw["geometry"].baseline_m)}))
+    rows = _twin_rows(2, lambda s: None)
+    assert {r["baseline_m"] for r in rows} == {0.0, 0.12} and {r["latency_ms"] for r in rows} == {5.0, 10.0, 20.0}
+    assert any(r["run"] == "full light" and r["backscatter_removed"] == 0 for r in rows)
+    assert any(r["run"] == "default, range, flash, predict" for r in rows if r["baseline_m"] == 0.12)

@@ -166,6 +166,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--report", metavar="FILE.md", default="docs/scoreboard.md", help="scoreboard path "
                     "(default docs/scoreboard.md)")
     ev.add_argument("--frames", type=int, help="at most N frames per scenario")
+    ev.add_argument("--twin-frames", type=int, default=60, help="frames per closed-loop twin run for the "
+                    "scoreboard's twin table (0 = leave it out; default 60)")
     ev.add_argument("--bench-frames", type=int, default=100, help="frames per size for the scoreboard's "
                     "bench table (0 = leave it out; default 100)")
     ev.add_argument("--detector", default=None, help="detector to run (default: the default detector); "
@@ -334,9 +336,12 @@ def _evaluate(args: argparse.Namespace) -> int:
         if args.bench_frames:
             from .bench import bench
             bench_result = bench(detectors=detectors, frames=args.bench_frames)
+        if args.twin_frames < 0:
+            raise UsageError(f"--twin-frames {args.twin_frames}: allowed >= 0 (0 leaves the table out)")
         markdown, data = scoreboard(scenarios=scenarios, catalogue_version=version, detectors=detectors,
                                     real_pairs=real, matching=m, bench_result=bench_result,
-                                    frames_limit=args.frames, log=lambda t: print(t, file=sys.stderr))
+                                    frames_limit=args.frames, log=lambda t: print(t, file=sys.stderr),
+                                    twin_frames=args.twin_frames)
         report = Path(args.report)
         report.parent.mkdir(parents=True, exist_ok=True)
         report.write_text(markdown)

@@ -157,9 +157,11 @@ def test_scoreboard_end_to_end_on_a_tiny_catalogue(tmp_path, cli):
     cv2.imwrite(str(data / "x_task1.png"), degraded)
     report = tmp_path / "score.md"
     result = cli("evaluate", "--catalogue", "--catalogue-file", str(catalogue), "--data", str(tmp_path / "data"),
-                 "--report", str(report), "--bench-frames", "3")
+                 "--report", str(report), "--bench-frames", "3", "--twin-frames", "0")
     assert result.code == 0, result.err
     text = report.read_text()
     assert "catalogue version 3" in text
     assert "| tiny | seed |" in text and "| tinybubbles | seed |" in text and "| real: x_task1 | seed |" in text
     assert "## Latency" in text
+    assert "## Tracking" in text and "| tinybubbles |" in text.split("## Tracking")[1]
+    assert "## Closed loop" not in text

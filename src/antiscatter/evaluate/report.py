@@ -110,8 +110,13 @@ def _table(rows: list[dict[str, Any]], columns: list[tuple[str, str, str]]) -> l
 
 def scoreboard(*, scenarios: dict[str, Any], catalogue_version: int, detectors: list[str],
                real_pairs: list[tuple[str, Path, Path]], matching: Any, bench_result: Any | None,
-               frames_limit: int | None = None, log: Callable[[str], None] = lambda s: None) -> tuple[str, dict]:
-    """Run every detector on every scenario and real pair; return (markdown, data)."""
+               frames_limit: int | None = None, log: Callable[[str], None] = lambda s: None,
+               tracking: bool = True, twin_frames: int = 0) -> tuple[str, dict]:
+    """Run every detector on every scenario and real pair; return (markdown, data).
+
+    tracking: also the tracker's figures (default detector) on every scenario;
+    twin_frames: also the closed-loop twin's table (0 = leave it out).
+    """
     from .runs import evaluate_pairs, evaluate_scenario
 
     built = {name: make_detector(name) for name in detectors}
@@ -161,4 +166,62 @@ def scoreboard(*, scenarios: dict[str, Any], catalogue_version: int, detectors: 
                             ("max", "max", "{:.0f}"), ("speedup", "x seed's throughput", "{:.2f}"),
                             ("floor", "copy floor", "{:.0f}"), ("x_floor", "x floor", "{:.1f}")])
         data["bench"] = bench_result.as_dict()
+    if tracking:
+        md += ["", "## Tracking (default detector + Kalman tracker)", "",
+               "Against the simulator's particle ids; prediction error = distance between a confirmed track's "
+               "constant-velocity prediction and where its particle is 1 and 3 frames later.", ""]
+        rows = _tracking_rows(scenarios, matching, frames_limit, log)
+        md += _table(rows, [("scene", "scene", ""), ("mota", "MOTA", "{:.3f}"), ("idf1", "IDF1", "{:.3f}"),
+                            ("id_switches", "ID switches", "{}"), ("fragmentations", "fragmentations", "{}"),
+                            ("pred1", "pred. err +1 (px)", "{:.2f}"), ("pred3", "pred. err +3 (px)", "{:.2f}")])
+        data["tracking"] = rows
+    if twin_frames:
+        md += ["", "## Closed loop (`antiscatter twin`)", "",
+               f"Preset mixed, 800x600 camera at 60 Hz (4 ms exposure), 1280x800 projector at 120 Hz, "
+               f"{twin_frames} frames per run. Removed = backscatter withheld from particles, kept = scene "
+               "light left on (1 = full lamp). Holes drawn with the twin's exact geometry at the working "
+               "depth (\"calibrated\"), or stretched over each particle's disparity range (\"range\").", ""]
+        rows = _twin_rows(twin_frames, log)
+        md += _table(rows, [("baseline_m", "baseline (m)", "{:g}"), ("latency_ms", "latency (ms)", "{:g}"),
+                            ("run", "system", ""), ("backscatter_removed", "removed", "{:.3f}"),
+                            ("scene_light_kept", "kept", "{:.3f}")])
+        data["twin"] = rows
     return "\n".join(md) + "\n", data
+
+
+def _tracking_rows(scenarios: dict[str, Any], matching: Any, frames_limit: int | None,
+                   log: Callable[[str], None]) -> list[dict[str, Any]]:
+    from ..simulate import make_scene
+    from .runs import evaluate_tracking, scenario_truth_frames
+
+    rows = []
+    for s in scenarios.values():
+        frames = min(s.frames, frames_limit) if frames_limit else s.frames
+        log(f"tracking {s.name}")
+        fps = make_scene(s.preset, rng=np.random.default_rng(0), size=(8, 8)).fps
+        out = evaluate_tracking(scenario_truth_frames(s.preset, s.size, frames, s.seed, matching),
+                                make_detector("contrast"), matching, fps=fps)
+        t, p = out["tracking"], out["prediction"]
+        rows.append({"scene": s.name, "mota": t["mota"], "idf1": t["idf1"], "id_switches": t["id_switches"],
+                     "fragmentations": t["fragmentations"], "pred1": p["+1"]["mean_px"],
+                     "pred3": p["+3"]["mean_px"]})
+    return rows
+
+
+def _twin_rows(frames: int, log: Callable[[str], None]) -> list[dict[str, Any]]:
+    from ..twin import TwinGeometry, default_runs, simulate_loop
+
+    rows = []
+    for baseline in (0.0, 0.12):
+        for latency in (5.0, 10.0, 20.0):
+            log(f"twin: baseline {baseline} m, latency {latency} ms")
+            for run in default_runs(baseline):
+                out = simulate_loop(run, geometry=TwinGeometry(baseline_m=baseline), frames=frames,
+                                    latency_ms=latency)
+                name = ("full light" if run.detector is None else
+                        f"{out['detector']}, {out['mapping']}, {out['strategy']}"
+                        + (", predict" if out["predict"] else ""))
+                rows.append({"baseline_m": baseline, "latency_ms": latency, "run": name,
+                             "backscatter_removed": out["backscatter_removed"],
+                             "scene_light_kept": out["scene_light_kept"]})
+    return rows
