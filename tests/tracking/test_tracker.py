@@ -93,7 +93,20 @@ def test_empty_frames():
     assert tracker.holes(0.1).centres.shape == (0, 2)
     tracker.update(Detections([[10, 10]], [2.0]), DT)
     tracks = tracker.update(Detections.empty(), 2 * DT)
-    assert len(tracks) == 0  # a tentative track is dropped at its first miss
+    assert len(tracks) == 1 and len(tracker.holes(2 * DT)) == 0  # a tentative track survives one miss, unlit
+    tracks = tracker.update(Detections.empty(), 3 * DT)
+    assert len(tracks) == 0  # ... and is dropped at the second
+    strict = Tracker(tentative_misses=0)
+    strict.update(Detections([[10, 10]], [2.0]), DT)
+    assert len(strict.update(Detections.empty(), 2 * DT)) == 0
+
+
+def test_a_faint_new_particle_missed_once_keeps_its_id():
+    tracker = Tracker()
+    first = tracker.update(Detections([[50.0, 50.0]], [2.0]), 0.0).detection_ids[0]
+    tracker.update(Detections.empty(), DT)
+    again = tracker.update(Detections([[50.0, 50.0]], [2.0]), 2 * DT).detection_ids[0]
+    assert again == first
 
 
 def test_gating_prevents_absurd_matches():

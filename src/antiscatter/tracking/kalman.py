@@ -13,7 +13,8 @@ standard deviations of the track's predicted position, clipped to
 [min_gate, max_gate] pixels.  A track is confirmed after ``confirm_hits`` hits;
 a confirmed track that is missed coasts on its predicted path for up to
 ``max_misses`` frames (a particle that went dark under its own hole keeps its
-hole), a tentative one is dropped at its first miss.  Ids are never reused.
+hole), a tentative one survives ``tentative_misses`` misses without a hole.
+Ids are never reused.
 """
 
 from __future__ import annotations
@@ -58,6 +59,8 @@ class Tracker:
     ----------
     confirm_hits : hits before a track is confirmed (default 3).
     max_misses : frames a confirmed track coasts without a detection before deletion (default 5).
+    tentative_misses : misses a not yet confirmed track survives (default 1: a faint new particle
+        the detector misses once keeps its identity; it has no hole meanwhile).
     gate_sigma : gate in standard deviations of the predicted position (default 4).
     min_gate, max_gate : gate limits in pixels (defaults 3 and 80).
     accel_noise : process noise, px/s^2 of white acceleration (default 3000).
@@ -67,11 +70,13 @@ class Tracker:
     initial_speed : prior speed spread of a new track, px/s (default 400).
     """
 
-    def __init__(self, *, confirm_hits: int = 3, max_misses: int = 5, gate_sigma: float = 4.0,
+    def __init__(self, *, confirm_hits: int = 3, max_misses: int = 5, tentative_misses: int = 1,
+                 gate_sigma: float = 4.0,
                  min_gate: float = 3.0, max_gate: float = 80.0, accel_noise: float = 3000.0,
                  radius_noise: float = 4.0, position_noise: float = 0.7,
                  radius_measurement_noise: float = 1.0, initial_speed: float = 400.0) -> None:
         checks = {"confirm_hits": confirm_hits >= 1, "max_misses": max_misses >= 0,
+                  "tentative_misses": 0 <= tentative_misses <= max_misses,
                   "gate_sigma": gate_sigma > 0, "min_gate": min_gate > 0, "max_gate": max_gate >= min_gate,
                   "accel_noise": accel_noise >= 0, "radius_noise": radius_noise >= 0,
                   "position_noise": position_noise > 0, "radius_measurement_noise": radius_measurement_noise > 0,
@@ -81,6 +86,7 @@ class Tracker:
                 raise ValueError(f"{name}: got {locals()[name]!r}, out of range")
         self.confirm_hits = confirm_hits
         self.max_misses = max_misses
+        self.tentative_misses = tentative_misses
         self.gate_sigma = gate_sigma
         self.min_gate, self.max_gate = min_gate, max_gate
         self.accel_noise = accel_noise
@@ -149,9 +155,9 @@ class Tracker:
             detection_ids[k] = self.ids[t]
         if len(unmatched_tracks):
             self.misses[unmatched_tracks] += 1
-        # delete: tentative tracks at their first miss, confirmed ones after max_misses
+        # delete: tentative tracks after tentative_misses, confirmed ones after max_misses
         confirmed = self.hits >= self.confirm_hits
-        keep = np.where(confirmed, self.misses <= self.max_misses, self.misses == 0)
+        keep = np.where(confirmed, self.misses <= self.max_misses, self.misses <= self.tentative_misses)
         if not keep.all():
             self.x, self.pp, self.pv, self.vv, self.rr = (self.x[keep], self.pp[keep], self.pv[keep],
                                                           self.vv[keep], self.rr[keep])
@@ -192,8 +198,10 @@ class Tracker:
 
     def snapshot(self) -> "Prediction":
         """The tracks as they are now, frozen: holes for any later time, from another thread."""
-        return Prediction(self.x.copy(), self.pp.copy(), self.pv.copy(), self.vv.copy(), self.ids.copy(),
-                          self.hits >= self.confirm_hits, self.timestamp, self.accel_noise)
+        confirmed = self.hits >= self.confirm_hits
+        shown = confirmed | (self.misses == 0)  # a tentative track that was just missed has no hole
+        return Prediction(self.x[shown], self.pp[shown], self.pv[shown], self.vv[shown], self.ids[shown],
+                          confirmed[shown], self.timestamp, self.accel_noise)
 
 
 @dataclass(frozen=True, eq=False)
