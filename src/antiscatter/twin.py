@@ -25,6 +25,12 @@ is lost, its hole closes, it is lit again):
 * ``flash``: every camera exposure sits in a uniform flash sub-frame of
   ``flash_level``; the pattern is shown in the other sub-frames;
 * ``coast``: holes follow tracked particles on their predicted path while dark.
+
+Mappings: ``identity`` (camera pixels scaled to the projector), ``calibrated``
+(the mapping of a plane at the working depth), ``range`` (each hole stretched
+over its particle's whole disparity range, near..far) and ``probe`` (with
+``dim`` and prediction: each track's depth found by bisection over the next
+exposures, :class:`~antiscatter.probe.DepthProbe`).
 """
 
 from __future__ import annotations
@@ -40,12 +46,21 @@ from .detection import make_detector
 from .detections import Detections
 from .pattern import render_pattern, scale_mapping
 from .simulate import make_scene
+from .probe import DepthProbe
 from .tracking import Prediction
+
+
+@dataclass(frozen=True)
+class _Probing:
+    """A queued pattern of the ``probe`` mapping: tracks frozen at one update, and each one's interval."""
+
+    prediction: Prediction
+    probes: dict
 
 __all__ = ["TwinGeometry", "TwinRun", "simulate_loop", "default_runs", "STRATEGIES", "MAPPINGS"]
 
 STRATEGIES = ("none", "dim", "flash", "coast")
-MAPPINGS = ("identity", "calibrated", "range")
+MAPPINGS = ("identity", "calibrated", "range", "probe")
 
 
 @dataclass(frozen=True)
@@ -128,6 +143,8 @@ class TwinRun:
             raise ValueError(f"strategy: got {self.strategy!r}, allowed {', '.join(STRATEGIES)}")
         if self.mapping not in MAPPINGS:
             raise ValueError(f"mapping: got {self.mapping!r}, allowed {', '.join(MAPPINGS)}")
+        if self.mapping == "probe" and (self.strategy != "dim" or not self.predict):
+            raise ValueError("mapping: probe needs strategy dim (a probed particle must stay visible) and predict")
 
 
 def _mean_over_discs(light: np.ndarray, u: np.ndarray, v: np.ndarray, r: np.ndarray) -> np.ndarray:
@@ -187,6 +204,11 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
     if run.strategy == "coast" or run.predict:
         from .tracking import Tracker
         tracker = Tracker()
+    probe = None
+    if run.mapping == "probe":
+        probe = DepthProbe(calibration.mapping_at if calibration is not None else geometry.plane_mapping,
+                           near_m=geometry.near_m, far_m=geometry.far_m, dim_level=run.dim_level)
+    shown_probes: dict = {}  # the intervals the pattern on during the last exposure gave each track
     pw, ph = geometry.projector_size
     if run.mapping == "identity":
         camera_mapping = scale_mapping(geometry.camera_size, geometry.projector_size)
@@ -194,6 +216,12 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
         camera_mapping = calibration.homography
     else:
         camera_mapping = geometry.plane_mapping(geometry.working_depth_m)
+    # where the system believes its light lands behind the particles: the far working distance
+    # (the identity runs know no geometry: their own mapping)
+    far_mapping = (camera_mapping if run.mapping == "identity" else
+                   calibration.mapping_at(geometry.far_m) if calibration is not None else
+                   geometry.plane_mapping(geometry.far_m))
+    camera_from_far = np.linalg.inv(far_mapping)
     sub_per_frame = int(round(geometry.projector_hz / geometry.camera_hz))
     sub_s = 1.0 / geometry.projector_hz
     latency = latency_ms / 1e3
@@ -217,7 +245,13 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
         ready = t0 + geometry.exposure_s + latency
         on_at = math.ceil(ready / sub_s - 1e-9) * sub_s
         if tracker is not None:
-            tracker.update(found, t0 + geometry.exposure_s / 2)
+            tracks = tracker.update(found, t0 + geometry.exposure_s / 2)
+            if probe is not None:
+                seen = Detections(found.centres, found.radii, found.scores, tracks.detection_ids)
+                probe.observe(seen, shown_probes, tracks.ids[tracks.confirmed & (tracks.misses > 0)])
+                probe.forget(tracks.ids)
+                snapshot = tracker.snapshot()
+                return on_at, _Probing(snapshot, probe.probes(snapshot.holes(t0)))
             if run.predict and run.per_refresh:
                 return on_at, tracker.snapshot()
             holes = tracker.holes(on_at + sub_s / 2 if run.predict else t0 + geometry.exposure_s / 2)
@@ -245,6 +279,8 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
             ts = t0 + j * sub_s
             while queue and queue[0][0] <= ts + 1e-12:
                 displayed = queue.pop(0)[1]
+            if j == 0:
+                shown_probes = displayed.probes if isinstance(displayed, _Probing) else {}
             if detector is None:
                 shown = full
             elif run.strategy == "flash" and j == 0:
@@ -252,6 +288,10 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
             elif isinstance(displayed, Prediction):  # holes predicted for this refresh's own time
                 shown = _holes_pattern(displayed.holes(ts + sub_s / 2), geometry, run, camera_mapping, buffer,
                                        calibration)
+            elif isinstance(displayed, _Probing):
+                pattern = probe.render(displayed.prediction.holes(ts + sub_s / 2), displayed.probes,
+                                       size=geometry.projector_size, margin=run.margin_px, out=buffer)
+                shown = np.maximum(pattern.astype(np.float32) / 255.0, run.dim_level)
             else:
                 shown = displayed
             # the scene's state is the frame's mid-exposure; particles keep moving through the
@@ -269,6 +309,11 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                 # the exposure sits at the start of the frame, inside the first refresh; its pattern
                 # may go on at a later refresh of this same frame
                 exposure_light = (_mean_over_discs(shown, u, v, np.maximum(rp, 0.5)), bg)
+                # the system knows the light it put on the scene during this exposure: its
+                # pattern, taken back to camera pixels on a plane at the far working distance
+                detector.set_light(cv2.warpPerspective(shown, camera_from_far, geometry.camera_size,
+                                                       flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                                                       borderValue=1.0))
                 queue.append(_process(scene.render(light=exposure_light), t0))
                 queue.sort(key=lambda item: item[0])
         frame_on /= sub_per_frame
@@ -301,6 +346,7 @@ def default_runs(baseline_m: float) -> list[TwinRun]:
              TwinRun("contrast", "calibrated", "flash", predict=True)]
     if baseline_m > 0:
         runs.append(TwinRun("contrast", "range", "flash", predict=True))
+        runs.append(TwinRun("contrast", "probe", "dim", predict=True))
     return runs
 
 

@@ -184,3 +184,27 @@ def test_a_lone_pixel_needs_lone_k_noise_units():
     kept = measure(components, excess, noise, lone_k=5.0, **kw)
     assert sorted(np.rint(kept.centres[:, 0]).tolist()) == [30, 50]
     assert len(measure(components, excess, noise, lone_k=0.0, **kw)) == 3
+
+
+def test_the_lamps_own_pattern_on_the_background_is_not_taken_for_particles():
+    rng = np.random.default_rng(3)
+    scene_bg = 60 + 30 * fractal_noise((320, 240), rng, octaves=3, base=4)
+    light = np.ones((240, 320), np.float32)
+    dimmed = light.copy()
+    dimmed[60:180, 100:220] = 0.2  # a long hole drawn over the background
+    schedule = [light] * 20 + [dimmed] * 6 + [light] * 3
+    counts = {}
+    for informed in (False, True):
+        detector = make_detector("contrast")
+        found = []
+        for i, lamp in enumerate(schedule):
+            frame = scene_bg * lamp + rng.normal(0, 1.5, lamp.shape)
+            cv2.circle(frame, (40 + i, 40), 4, 230, -1)  # a particle drifting, always lit
+            if informed:
+                detector.set_light(lamp)
+            found.append(detector.detect(np.clip(frame, 0, 255).astype(np.uint8)))
+        for f in found[-3:]:
+            assert (np.hypot(f.centres[:, 0] - (40 + len(schedule) - 3), f.centres[:, 1] - 40) < 3).sum() <= 1
+        counts[informed] = sum(len(f) for f in found[20:])
+    assert counts[True] <= 9 + 3  # the particle in each of the 9 frames, at most a few spots more
+    assert counts[False] > counts[True] + 10  # uninformed, the lit-again patch is "particles"

@@ -35,17 +35,26 @@ def _no_state() -> None:
     return None
 
 
+def _no_light(light: Any) -> None:
+    return None
+
+
 @dataclass(frozen=True)
 class Detector:
     """A named chain of stages; ``detect(frame)`` runs them untimed.
 
     reset: forget what was learnt from earlier frames (call between unrelated images).
+    set_light: tell the detector the light the lamp gives the scene during the next frame's
+        exposure -- an (H, W) map in camera pixels, 1 = full lamp (any size; None = full
+        everywhere) -- so the pattern's own imprint on the background is not taken for
+        particles; detectors that cannot use it ignore it.
     """
 
     name: str
     stages: tuple[Stage, ...]
     params: Any = None
     reset: Callable[[], None] = _no_state
+    set_light: Callable[[Any], None] = _no_light
 
     def detect(self, image: np.ndarray) -> Detections:
         """Run every stage on one frame, (H, W, 3) BGR or (H, W) grey uint8."""

@@ -563,27 +563,36 @@ def build_contrast(params: ContrastParams) -> Detector:
         model.cell = max(int(round(cell / factor)), 2)
         return downsample(image, factor=factor)
 
+    def set_light(light: np.ndarray | None) -> None:
+        state["light"] = light
+
     def stage_background(half: np.ndarray):
-        return half, *model.estimate(half)
+        light = _working_light(state.get("light"), half.shape, state["factor"])
+        if light is None:
+            return half, half, *model.estimate(half)
+        # the model learns the scene under the full lamp; this frame's background is that times the light
+        reflectance = cv2.divide(half, light, scale=255)
+        base, limit = model.estimate(reflectance)
+        return half, reflectance, cv2.multiply(base, light, scale=1 / 255), limit
 
     def stage_threshold(value):
-        half, base, limit = value
-        return half, *threshold_mask(half, base, limit)
+        half, reflectance, base, limit = value
+        return reflectance, *threshold_mask(half, base, limit)
 
     def stage_label(value):
-        half, mask, excess = value
-        return half, mask, excess, label(mask)
+        reflectance, mask, excess = value
+        return reflectance, mask, excess, label(mask)
 
     def stage_measure(value):
-        half, mask, excess, components = value
+        reflectance, mask, excess, components = value
         found = measure(components, excess, model.noise, halo=params.halo, max_radius=params.max_radius,
                         split=params.split, frame_width=state["width"], factor=state["factor"],
                         lone_k=params.lone_k)
-        return half, mask, found
+        return reflectance, mask, found
 
     def stage_update(value) -> Detections:
-        half, mask, found = value
-        model.learn(half, mask)
+        reflectance, mask, found = value
+        model.learn(reflectance, mask)
         return found
 
     stages = (
@@ -594,7 +603,24 @@ def build_contrast(params: ContrastParams) -> Detector:
         Stage("measure", "Measure Particles", stage_measure),
         Stage("update", "Background Update", stage_update),
     )
-    return Detector("contrast", stages, params, reset=model.reset)
+    return Detector("contrast", stages, params, reset=model.reset, set_light=set_light)
+
+
+def _working_light(light: np.ndarray | None, shape: tuple[int, int], factor: int) -> np.ndarray | None:
+    """The lamp's light map at working resolution as uint8 (255 = full, at least 1); None when full.
+
+    A map of the frame's size goes through the same downsampling as the frame, so the
+    edges of holes blur exactly as the image of them does."""
+    if light is None:
+        return None
+    light = np.asarray(light)
+    if light.dtype != np.uint8:
+        light = cv2.convertScaleAbs(light, alpha=255.0)  # 0..1 -> 0..255, saturated
+    if light.shape == (shape[0] * factor, shape[1] * factor) or (factor == 1 and light.shape == shape):
+        light = downsample(light, factor=factor)
+    if light.shape != shape:
+        light = cv2.resize(light, (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
+    return cv2.max(light, 1)
 
 
 register_detector("contrast", ContrastParams, build_contrast,

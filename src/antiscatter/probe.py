@@ -1,0 +1,174 @@
+"""Per-particle depth along the epipolar line, found by the light itself.
+
+With the projector beside the camera (the housing's 12 cm), a particle seen at
+camera pixel p may be anywhere on a segment of projector pixels: from where a
+point at the far working distance would be lit to where a point at the near one
+would be (hundreds of pixels).  Nothing in one image tells where on it -- but
+the camera sees each particle under the light the pattern gives it.  With dim
+holes (the ``dim`` strategy) a particle under its hole still shows, at
+``dim_level`` of its brightness: so each frame the pattern can cover only part
+of a particle's remaining segment and the next exposure says whether that part
+held it (the particle dimmed, or vanished) or not (it stayed as bright as when
+lit).  Bisection over a few frames pins the hole to the particle's depth; a
+hole that stops working (the particle is lit again) reopens the whole segment.
+
+Depth is kept as inverse depth w = 1/Z in [1/far, 1/near]: for a
+camera-projector pair the mapping of a plane at depth Z is linear in 1/Z, so
+the projector position of p moves along a straight line as w grows.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import cv2
+import numpy as np
+
+from .detections import Detections
+from .pattern import map_to_projector
+
+__all__ = ["DepthProbe"]
+
+
+@dataclass
+class _Track:
+    lo: float  # inverse depth interval still holding the particle (1/m)
+    hi: float
+    lit: float = 0.0  # the particle's brightness when fully lit (detector score), 0 = unknown
+
+
+@dataclass
+class DepthProbe:
+    """Bisection of each track's depth interval, judged by the next exposure.
+
+    mapping_at: camera-to-projector homography of a plane at a depth in metres
+        (a calibration's ``mapping_at``, or the twin's exact one).
+    near_m, far_m: working distances.
+    dim_level: light left in holes (0..1); a probed particle counts as hit when it
+        comes back dimmer than sqrt(dim_level) of its lit brightness (the
+        geometric middle), or not at all.
+    settle_px: stop halving once the interval spans this many projector pixels
+        (about a hole's diameter).
+    """
+
+    mapping_at: Callable[[float], np.ndarray]
+    near_m: float = 0.3
+    far_m: float = 3.0
+    dim_level: float = 0.2
+    settle_px: float = 12.0
+    tracks: dict[int, _Track] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not 0 < self.near_m < self.far_m:
+            raise ValueError(f"near_m, far_m: got {self.near_m}, {self.far_m}; allowed 0 < near < far")
+        self.w_far, self.w_near = 1.0 / self.far_m, 1.0 / self.near_m
+        self._h_far = np.asarray(self.mapping_at(self.far_m), np.float64)
+        self._h_near = np.asarray(self.mapping_at(self.near_m), np.float64)
+        self._threshold = float(np.sqrt(self.dim_level))
+
+    # ----------------------------------------------------------------- geometry
+    def span_px(self, centres: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """Projector pixels between the positions of ``centres`` at inverse depths lo and hi."""
+        step = _apply(self._h_near, centres) - _apply(self._h_far, centres)
+        return np.hypot(*(step * (_t(hi, self) - _t(lo, self))[:, None]).T)
+
+    # ------------------------------------------------------------------ updates
+    def observe(self, detections: Detections, shown: dict[int, tuple[float, float]],
+                coasting: np.ndarray) -> None:
+        """One exposure's verdicts.
+
+        detections: this frame's detections with their ``track_ids`` (scores = brightness);
+        shown: the probe interval each track's hole covered during this exposure;
+        coasting: ids of confirmed tracks not detected this frame (dark: under their hole).
+        """
+        for tid, score in zip(detections.track_ids.tolist(), detections.scores.tolist()):
+            if tid < 0:
+                continue
+            track = self.tracks.setdefault(tid, _Track(self.w_far, self.w_near))
+            probe = shown.get(tid)
+            if probe is None or track.lit <= 0:
+                track.lit = score if track.lit <= 0 else 0.7 * track.lit + 0.3 * score
+                continue
+            if score < self._threshold * track.lit:
+                self._hit(track, probe)
+            else:
+                self._miss(track, probe)
+                track.lit = 0.7 * track.lit + 0.3 * score
+        for tid in np.asarray(coasting).tolist():
+            track = self.tracks.get(tid)
+            probe = shown.get(tid)
+            if track is not None and probe is not None:
+                self._hit(track, probe)
+
+    def _hit(self, track: _Track, probe: tuple[float, float]) -> None:
+        lo, hi = max(track.lo, probe[0]), min(track.hi, probe[1])
+        track.lo, track.hi = (lo, hi) if lo < hi else probe
+
+    def _miss(self, track: _Track, probe: tuple[float, float]) -> None:
+        a, b = probe
+        if a <= track.lo + 1e-12 and b >= track.hi - 1e-12:  # the settled hole missed: start again
+            track.lo, track.hi = self.w_far, self.w_near
+        elif a <= track.lo + 1e-12:
+            track.lo = max(track.lo, b)
+        elif b >= track.hi - 1e-12:
+            track.hi = min(track.hi, a)
+
+    def probes(self, holes: Detections) -> dict[int, tuple[float, float]]:
+        """The interval each hole covers next: the lower half of its track's interval while it
+        spans more than ``settle_px``, else all of it; new particles get the whole range."""
+        out: dict[int, tuple[float, float]] = {}
+        if len(holes) == 0:
+            return out
+        ids = holes.track_ids
+        lo = np.array([self.tracks[t].lo if t in self.tracks else self.w_far for t in ids.tolist()])
+        hi = np.array([self.tracks[t].hi if t in self.tracks else self.w_near for t in ids.tolist()])
+        span = self.span_px(holes.centres, lo, hi)
+        known = np.array([t in self.tracks and self.tracks[t].lit > 0 for t in ids.tolist()])
+        halve = known & (span > self.settle_px)
+        mid = (lo + hi) / 2
+        for tid, a, b, m, h in zip(ids.tolist(), lo.tolist(), hi.tolist(), mid.tolist(), halve.tolist()):
+            out[tid] = (a, m) if h else (a, b)
+        return out
+
+    def forget(self, alive: np.ndarray) -> None:
+        """Drop the state of tracks that no longer exist."""
+        keep = set(np.asarray(alive).tolist())
+        for tid in [t for t in self.tracks if t not in keep]:
+            del self.tracks[tid]
+
+    # ---------------------------------------------------------------- rendering
+    def render(self, holes: Detections, probes: dict[int, tuple[float, float]], *, size: tuple[int, int],
+               margin: float = 0.0, out: np.ndarray | None = None, hole: int = 0) -> np.ndarray:
+        """The pattern: each hole drawn as a thick segment over its probe interval (uint8, 255 = light)."""
+        width, height = size
+        if out is None:
+            out = np.empty((height, width), np.uint8)
+        out.fill(255)
+        if len(holes) == 0:
+            return out
+        ids = holes.track_ids.tolist()
+        lo = np.array([probes.get(t, (self.w_far, self.w_near))[0] for t in ids])
+        hi = np.array([probes.get(t, (self.w_far, self.w_near))[1] for t in ids])
+        far = _apply(self._h_far, holes.centres)
+        near = _apply(self._h_near, holes.centres)
+        a = far + _t(lo, self)[:, None] * (near - far)
+        b = far + _t(hi, self)[:, None] * (near - far)
+        _, radii = map_to_projector(holes, self._h_far)
+        thickness = np.maximum(1, np.rint(2 * (radii + margin))).astype(int)
+        for (ax, ay), (bx, by), t in zip((a * 16).round().astype(np.int64).tolist(),
+                                         (b * 16).round().astype(np.int64).tolist(), thickness.tolist()):
+            cv2.line(out, (ax, ay), (bx, by), hole, t, cv2.LINE_8, 4)
+        return out
+
+
+def _t(w: np.ndarray, probe: DepthProbe) -> np.ndarray:
+    return (np.asarray(w) - probe.w_far) / (probe.w_near - probe.w_far)
+
+
+def _apply(h: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(N, 2) points through the homography ``h``."""
+    p = np.asarray(points, np.float64).reshape(-1, 2)
+    w = h[2, 0] * p[:, 0] + h[2, 1] * p[:, 1] + h[2, 2]
+    return np.column_stack([(h[0, 0] * p[:, 0] + h[0, 1] * p[:, 1] + h[0, 2]) / w,
+                            (h[1, 0] * p[:, 0] + h[1, 1] * p[:, 1] + h[1, 2]) / w])

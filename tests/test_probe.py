@@ -1,0 +1,65 @@
+"""Depth by bisection along the epipolar line, judged by what the camera sees next."""
+
+import numpy as np
+import pytest
+
+from antiscatter.detections import Detections
+from antiscatter.probe import DepthProbe
+from antiscatter.twin import TwinGeometry, TwinRun
+
+GEOMETRY = TwinGeometry(baseline_m=0.12)
+
+
+def probe():
+    return DepthProbe(GEOMETRY.plane_mapping, near_m=0.3, far_m=3.0, dim_level=0.2, settle_px=12.0)
+
+
+def test_bisection_finds_a_particles_depth_from_lit_and_dimmed_exposures():
+    p = probe()
+    centre = np.array([[400.0, 300.0]])
+    true_w = 1 / 0.8  # the particle is 0.8 m away
+    lit = 100.0
+    hole = Detections(centre, [4.0], scores=[lit], track_ids=[7])
+    p.observe(hole, {}, np.empty(0))  # first sight, fully lit: its brightness is learnt
+    for _ in range(12):
+        a, b = p.probes(hole)[7]
+        brightness = lit * (0.2 if a <= true_w <= b else 1.0)  # dimmed only when the probe held it
+        p.observe(Detections(centre, [4.0], scores=[brightness], track_ids=[7]), {7: (a, b)}, np.empty(0))
+    track = p.tracks[7]
+    assert track.lo <= true_w <= track.hi
+    assert p.span_px(centre, np.array([track.lo]), np.array([track.hi]))[0] <= 12.0
+    # settled: the probe is the whole (small) interval; a particle that vanished counts as dimmed
+    a, b = p.probes(hole)[7]
+    assert (a, b) == (track.lo, track.hi)
+    p.observe(Detections.empty(), {7: (a, b)}, np.array([7]))
+    assert (p.tracks[7].lo, p.tracks[7].hi) == (a, b)
+    # the settled hole missed (the particle came back fully lit): the search starts again
+    p.observe(Detections(centre, [4.0], scores=[lit], track_ids=[7]), {7: (a, b)}, np.empty(0))
+    assert (p.tracks[7].lo, p.tracks[7].hi) == (p.w_far, p.w_near)
+
+
+def test_the_segment_spans_the_disparity_between_near_and_far():
+    p = probe()
+    centre = np.array([[400.0, 300.0]])
+    full = p.span_px(centre, np.array([p.w_far]), np.array([p.w_near]))[0]
+    expected = GEOMETRY.projector_focal * 0.12 * (1 / 0.3 - 1 / 3.0)
+    assert full == pytest.approx(expected, rel=1e-9)
+    hole = Detections(centre, [2.0], track_ids=[3])
+    pattern = p.render(hole, {}, size=GEOMETRY.projector_size)  # unknown depth: the whole segment
+    near = GEOMETRY.plane_mapping(0.3) @ [400.0, 300.0, 1.0]
+    far = GEOMETRY.plane_mapping(3.0) @ [400.0, 300.0, 1.0]
+    for t in (0.0, 0.5, 1.0):
+        u, v = far[:2] + t * (near[:2] - far[:2])
+        assert pattern[int(round(v)), int(round(u))] == 0
+    assert pattern[int(round(far[1])) + 20, int(round(far[0]))] == 255
+    forgotten = probe()
+    forgotten.observe(Detections(centre, [2.0], scores=[50.0], track_ids=[3]), {}, np.empty(0))
+    forgotten.forget(np.array([4]))
+    assert forgotten.tracks == {}
+
+
+def test_probe_runs_need_dim_holes_and_prediction():
+    with pytest.raises(ValueError, match="probe needs strategy dim"):
+        TwinRun("contrast", "probe", "flash", predict=True)
+    with pytest.raises(ValueError, match="probe needs strategy dim"):
+        TwinRun("contrast", "probe", "dim", predict=False)
