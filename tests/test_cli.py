@@ -332,3 +332,28 @@ def test_strategy_auto_coasts_on_the_camera_only():
     assert on_vehicle.light.strategy == "coast" and on_vehicle.track.enabled
     replay = load_config()
     assert replay.light.strategy == "none" and not replay.track.enabled
+
+
+def test_compensation_tells_the_detector_the_light_of_the_last_pattern(tmp_path, monkeypatch):
+    import dataclasses
+
+    import antiscatter.runtime as runtime
+    from antiscatter.config import load_config
+
+    seen = []
+    real = runtime.make_detector
+
+    def recording(name, params=None):
+        detector = real(name, params)
+        return dataclasses.replace(detector, set_light=lambda light: (seen.append(light), detector.set_light(light)))
+
+    monkeypatch.setattr(runtime, "make_detector", recording)
+    frames = _disc_frames(tmp_path)
+    config = load_config(overrides={"source": {"spec": str(frames)}, "output": {"outputs": ("none",)},
+                                    "light": {"strategy": "dim", "compensate": True}})
+    runtime.run(config, log=__import__("io").StringIO(), out=__import__("io").StringIO())
+    assert len(seen) == 4 and seen[0].shape == (60, 80)  # half the 160x120 camera frame
+    # the particle at (30, 40) had a dim hole: its place is dark in the light map, the rest lit
+    assert seen[0][20, 15] == 51 and seen[0][100 // 2 - 10, 150 // 2] == 255
+    assert load_config().light.compensate is False  # replays never saw the light
+    assert load_config(overrides={"source": {"spec": "camera"}}).light.compensate is True

@@ -165,11 +165,16 @@ class LightConfig:
         under it; the pattern the rest of the time; needs mode ``single``) or ``coast``
         (tracked holes stay on particles that went dark; turns tracking on).
     dim_level, flash_level: fractions of full light, 0..1.
+    compensate: tell the detector the light each exposure got -- the pattern shown, taken back
+        to camera pixels through the inverse mapping -- so the holes' imprint on the background
+        is not taken for particles (mode single); None = on with the camera as source (files and
+        the simulator never saw the pattern).
     """
 
     strategy: str = "auto"
     dim_level: float = 0.2
     flash_level: float = 0.25
+    compensate: bool | None = None
 
     def __post_init__(self) -> None:
         if self.strategy not in ("auto", *STRATEGIES):
@@ -376,9 +381,11 @@ def load_config(path: str | Path | None = None, overrides: dict[str, dict[str, A
     except UsageError as exc:
         raise UsageError(f"{where}: {exc}" if path is not None and not detector_overrides else str(exc)) from None
     light = sections["light"]
+    camera = sections["source"].spec.split(":")[0] == "camera"
     if light.strategy == "auto":
-        camera = sections["source"].spec.split(":")[0] == "camera"
         light = dataclasses.replace(light, strategy=HARDWARE_STRATEGY if camera else "none")
+    if light.compensate is None:
+        light = dataclasses.replace(light, compensate=camera)
     if light.strategy == "flash" and sections["run"].mode != "single":
         raise UsageError(f"light.strategy: flash needs run.mode single (the flash, the capture and the pattern "
                          f"take turns), got mode {sections['run'].mode}")

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, TextIO
 
+import cv2
 import numpy as np
 
 from .config import Config, parse_size
@@ -292,6 +293,12 @@ class _Pipeline:
         self.hole_level = round(light.dim_level * 255) if light.strategy == "dim" else 0
         self.flash_image = (np.full((height, width), round(light.flash_level * 255), np.uint8)
                             if light.strategy == "flash" else None)
+        # the light the next exposure gets, in camera pixels at half size (the detector's working scale)
+        self.compensate = bool(light.compensate) and light.strategy != "flash" and config.run.mode == "single"
+        cw, ch = source.size
+        self.light_size = (max(cw // 2, 1), max(ch // 2, 1))
+        to_half = np.diag([self.light_size[0] / cw, self.light_size[1] / ch, 1.0])
+        self.camera_from_projector = to_half @ np.linalg.inv(self.mapping)
         self.columns = columns
         self.index_of = {c: i for i, c in enumerate(columns)}
         self.stage_columns = [f"{st.label} Duration (s)" for st in detector.stages]
@@ -367,6 +374,10 @@ class _Pipeline:
         for output in self.outputs:
             output.show(shown, rec.frame, rec.detections)
         t_out = clock()
+        if self.compensate:  # what the next exposure will be lit by: this pattern on the scene
+            self.detector.set_light(None if not self.light_on else cv2.warpPerspective(
+                shown, self.camera_from_projector, self.light_size, flags=cv2.INTER_LINEAR,
+                borderMode=cv2.BORDER_CONSTANT, borderValue=255))
         self._record(rec.frame.image)
         shown_ns = time.monotonic_ns()
         latency_ns = shown_ns - rec.frame.timestamp_ns
