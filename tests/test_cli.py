@@ -357,3 +357,32 @@ def test_compensation_tells_the_detector_the_light_of_the_last_pattern(tmp_path,
     assert seen[0][20, 15] == 51 and seen[0][100 // 2 - 10, 150 // 2] == 255
     assert load_config().light.compensate is False  # replays never saw the light
     assert load_config(overrides={"source": {"spec": "camera"}}).light.compensate is True
+
+
+def test_depth_probe_draws_each_unknown_particle_over_its_epipolar_segment(tmp_path, cli):
+    from antiscatter.calibration import load_calibration
+
+    calibration = tmp_path / "cal.json"
+    made = cli("calibrate", str(calibration), "--twin", "--size", "160x120")
+    assert made.code == 0, made.err
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i in range(3):  # right of centre, so the whole segment lands on the projector
+        cv2.imwrite(str(frames / f"{i}.png"), draw_discs((160, 120), [(100.0, 60.0, 3.0)]))
+    result = cli("run", str(frames), "--strategy", "dim", "--depth", "probe", "--calibration", str(calibration),
+                 "--output", f"files:{tmp_path / 'pat'}", "--detections", str(tmp_path / "d.csv"))
+    assert result.code == 0, result.err
+    assert "track_id" in (tmp_path / "d.csv").open().readline()  # probing tracks particles
+    pattern = cv2.imread(str(tmp_path / "pat" / "0.png"), cv2.IMREAD_UNCHANGED)
+    cal = load_calibration(calibration)
+    # the particle at (100, 60) is seen lit, so its first probe is the far half of its epipolar
+    # segment (inverse depth 1/3 .. (1/3 + 1/0.3) / 2, i.e. 3 m .. 0.55 m): dim there, lit nearer
+    for depth, level in ((3.0, 51), (1.0, 51), (0.6, 51), (0.3, 255)):
+        u, v, w = cal.mapping_at(depth) @ [100.0, 60.0, 1.0]
+        assert pattern[int(round(v / w)), int(round(u / w))] == level, depth
+    assert (pattern == 51).sum() > 20 * (pattern.shape[1] // 10)  # a segment, not a disc
+    bad = cli("run", str(frames), "--depth", "probe", "--strategy", "dim", "--output", "none")
+    assert bad.code == 2 and "probe needs a calibration with a baseline" in bad.err
+    bad = cli("run", str(frames), "--depth", "probe", "--strategy", "coast", "--calibration", str(calibration),
+              "--output", "none")
+    assert bad.code == 2 and "probe needs light.strategy dim" in bad.err

@@ -85,6 +85,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "particles that went dark (turns --track on)")
     g.add_argument("--dim-level", type=float, help="light left in dim holes, 0..1 (default 0.2)")
     g.add_argument("--flash-level", type=float, help="brightness of the detection flash, 0..1 (default 0.25)")
+    g.add_argument("--depth", choices=("fixed", "probe"), help="fixed (default): holes at the calibration's "
+                   "working distance; probe: each particle's depth found by bisection along its epipolar "
+                   "line under dim holes (needs --strategy dim and --calibration from two distances)")
     g = run.add_argument_group("pattern")
     g.add_argument("--projector-size", metavar="WxH", help="projector resolution (default 1280x800)")
     g.add_argument("--margin", type=float, help="pixels added to every hole's radius (default 0)")
@@ -655,7 +658,8 @@ def _run_config(args: argparse.Namespace):
         "detector": {"name": args.detector},
         "pattern": {"margin": args.margin},
         "track": {"enabled": args.track, "predict": args.predict, "latency_ms": args.latency_ms},
-        "light": {"strategy": args.strategy, "dim_level": args.dim_level, "flash_level": args.flash_level},
+        "light": {"strategy": args.strategy, "dim_level": args.dim_level, "flash_level": args.flash_level,
+                  "depth": args.depth},
         "output": {"outputs": tuple(args.output) if args.output else None},
         "run": {"frames": args.frames, "fps": args.fps, "nice": args.nice,
                 "metrics": args.metrics, "detections": args.detections, "mode": args.mode,
@@ -674,7 +678,7 @@ def _run_config(args: argparse.Namespace):
 
         calibration = load_calibration(args.calibration)
         overrides["pattern"].update(mapping=calibration.homography.tolist(), width=calibration.projector_size[0],
-                                    height=calibration.projector_size[1])
+                                    height=calibration.projector_size[1], calibration=args.calibration)
     base = load_config(args.config, overrides)
     if not args.param:
         return base

@@ -84,12 +84,15 @@ class PatternConfig:
     margin: pixels added to every hole's radius.
     mapping: (3, 3) camera-to-projector homography as nested lists; empty =
         identity scaled from the camera size to the projector size.
+    calibration: the calibration file the mapping came from (its depth model serves
+        ``light.depth = "probe"``); empty = none.
     """
 
     width: int = 1280
     height: int = 800
     margin: float = 0.0
     mapping: tuple = ()
+    calibration: str = ""
 
     def __post_init__(self) -> None:
         if self.width <= 0:
@@ -169,16 +172,28 @@ class LightConfig:
         to camera pixels through the inverse mapping -- so the holes' imprint on the background
         is not taken for particles (mode single); None = on with the camera as source (files and
         the simulator never saw the pattern).
+    depth: ``fixed`` (holes where the mapping puts a particle at the calibration's working
+        distance) or ``probe`` (each track's depth found by bisection along its epipolar line,
+        judged by the next exposures: needs strategy dim, tracking, mode single and a calibration
+        with a baseline, i.e. measured at two distances or more; see antiscatter.probe).
+    near_m, far_m: the working distances a particle may be at (probe).
     """
 
     strategy: str = "auto"
     dim_level: float = 0.2
     flash_level: float = 0.25
     compensate: bool | None = None
+    depth: str = "fixed"
+    near_m: float = 0.3
+    far_m: float = 3.0
 
     def __post_init__(self) -> None:
         if self.strategy not in ("auto", *STRATEGIES):
             raise ValueError(f"strategy: got {self.strategy!r}, allowed auto, {', '.join(STRATEGIES)}")
+        if self.depth not in ("fixed", "probe"):
+            raise ValueError(f"depth: got {self.depth!r}, allowed fixed, probe")
+        if not (math.isfinite(self.near_m) and math.isfinite(self.far_m) and 0 < self.near_m < self.far_m):
+            raise ValueError(f"near_m, far_m: got {self.near_m}, {self.far_m}; allowed 0 < near_m < far_m")
         for key in ("dim_level", "flash_level"):
             value = getattr(self, key)
             if not (math.isfinite(value) and 0 <= value <= 1):
@@ -392,6 +407,15 @@ def load_config(path: str | Path | None = None, overrides: dict[str, dict[str, A
     track = sections["track"]
     if light.strategy == "coast" and not track.enabled:
         track = dataclasses.replace(track, enabled=True)  # coasting is what the tracker does
+    if light.depth == "probe":
+        if light.strategy != "dim" or sections["run"].mode != "single":
+            raise UsageError(f"light.depth: probe needs light.strategy dim (a probed particle must stay "
+                             f"visible) and run.mode single; got strategy {light.strategy}, mode "
+                             f"{sections['run'].mode}")
+        if not sections["pattern"].calibration:
+            raise UsageError("light.depth: probe needs a calibration with a baseline (pattern.calibration, "
+                             "--calibration FILE from 'antiscatter calibrate' at two or more distances)")
+        track = dataclasses.replace(track, enabled=True)
     return Config(source=sections["source"], detector=sections["detector"], detector_params=params,
                   pattern=sections["pattern"], output=sections["output"], run=sections["run"],
                   track=track, light=light)

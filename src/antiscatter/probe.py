@@ -83,7 +83,7 @@ class DepthProbe:
         coasting: ids of confirmed tracks not detected this frame (dark: under their hole).
         """
         for tid, score in zip(detections.track_ids.tolist(), detections.scores.tolist()):
-            if tid < 0:
+            if tid < 0 or not np.isfinite(score):  # no brightness from this detector: no verdict
                 continue
             track = self.tracks.setdefault(tid, _Track(self.w_far, self.w_near))
             probe = shown.get(tid)

@@ -267,6 +267,7 @@ class _Record:
     pattern: Any  # the holes (Detections) until rendered, then the (H, W) uint8 pattern
     t_processed: int  # when rendering began
     t_pattern: int  # when rendering ended
+    probes: dict = field(default_factory=dict)  # depth probing: each track's interval in this pattern
 
 
 class _Pipeline:
@@ -284,7 +285,24 @@ class _Pipeline:
         self.summary = summary
         self.projector_size = (config.pattern.width, config.pattern.height)
         mapping = config.pattern.matrix()
+        calibration = None
+        if config.pattern.calibration:
+            from .calibration import load_calibration
+
+            calibration = load_calibration(config.pattern.calibration)
+            if mapping is None:
+                mapping = calibration.homography
         self.mapping = scale_mapping(source.size, self.projector_size) if mapping is None else mapping
+        self.probe = None
+        self.shown_probes: dict = {}  # each track's interval in the pattern the next exposure sees
+        if config.light.depth == "probe":
+            from .probe import DepthProbe
+
+            if calibration is None or calibration.baseline_m is None:
+                raise UsageError(f"{config.pattern.calibration}: light.depth probe needs a calibration with a "
+                                 "baseline (measured at two or more distances)")
+            self.probe = DepthProbe(calibration.mapping_at, near_m=config.light.near_m, far_m=config.light.far_m,
+                                    dim_level=config.light.dim_level)
         width, height = self.projector_size
         self.buffers = [np.empty((height, width), np.uint8) for _ in range(buffers)]
         self.next_buffer = 0
@@ -338,6 +356,12 @@ class _Pipeline:
                 holes = self.tracker.holes(captured + latency)
             else:
                 holes = self.tracker.holes(captured)
+            if self.probe is not None:  # this exposure's verdicts, then the next intervals to try
+                seen = Detections(detections.centres, detections.radii, detections.scores, tracks.detection_ids)
+                self.probe.observe(seen, self.shown_probes,
+                                   tracks.ids[tracks.confirmed & (tracks.misses > 0)])
+                self.probe.forget(tracks.ids)
+                holes = (holes, self.probe.probes(holes))
             track_ns = clock() - t_track
             t_processed = clock()
         return _Record(frame, t0, t1, detections, stage_ns, track_ns, track_ids, holes, t_processed, 0)
@@ -347,8 +371,14 @@ class _Pipeline:
         t_start = self.clock()
         buffer = self.buffers[self.next_buffer]
         self.next_buffer = (self.next_buffer + 1) % len(self.buffers)
-        rec.pattern = render_pattern(rec.pattern, size=self.projector_size, mapping=self.mapping,
-                                     margin=self.config.pattern.margin, out=buffer, hole=self.hole_level)
+        if self.probe is not None:
+            holes, probes = rec.pattern
+            rec.pattern = self.probe.render(holes, probes, size=self.projector_size,
+                                            margin=self.config.pattern.margin, out=buffer, hole=self.hole_level)
+            rec.probes = probes
+        else:
+            rec.pattern = render_pattern(rec.pattern, size=self.projector_size, mapping=self.mapping,
+                                         margin=self.config.pattern.margin, out=buffer, hole=self.hole_level)
         rec.t_pattern = self.clock()
         rec.t_processed = t_start
         return rec
@@ -374,6 +404,8 @@ class _Pipeline:
         for output in self.outputs:
             output.show(shown, rec.frame, rec.detections)
         t_out = clock()
+        if self.probe is not None:
+            self.shown_probes = rec.probes if self.light_on else {}
         if self.compensate:  # what the next exposure will be lit by: this pattern on the scene
             self.detector.set_light(None if not self.light_on else cv2.warpPerspective(
                 shown, self.camera_from_projector, self.light_size, flags=cv2.INTER_LINEAR,
