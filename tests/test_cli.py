@@ -325,13 +325,17 @@ def test_strategy_coast_tracks_and_flash_needs_single_mode(tmp_path, cli):
     assert bad.code == 2 and "light.strategy: got 'strobe', allowed auto, none, dim, flash, coast" in bad.err
 
 
-def test_strategy_auto_coasts_on_the_camera_only():
+def test_strategy_auto_dims_and_tracks_on_the_camera_only(tmp_path, cli):
     from antiscatter.config import load_config
 
     on_vehicle = load_config(overrides={"source": {"spec": "camera"}})
-    assert on_vehicle.light.strategy == "coast" and on_vehicle.track.enabled
+    assert on_vehicle.light.strategy == "dim" and on_vehicle.track.enabled and on_vehicle.light.depth == "fixed"
     replay = load_config()
-    assert replay.light.strategy == "none" and not replay.track.enabled
+    assert replay.light.strategy == "none" and not replay.track.enabled and replay.light.depth == "fixed"
+    calibration = tmp_path / "cal.json"
+    assert cli("calibrate", str(calibration), "--twin", "--size", "160x120").code == 0
+    probing = load_config(overrides={"source": {"spec": "camera"}, "pattern": {"calibration": str(calibration)}})
+    assert probing.light.depth == "probe"  # a calibration with a baseline: depth probing
 
 
 def test_compensation_tells_the_detector_the_light_of_the_last_pattern(tmp_path, monkeypatch):

@@ -78,15 +78,15 @@ def build_parser() -> argparse.ArgumentParser:
                    "(default: the measured one)")
     g = run.add_argument_group("light strategy (against the closed-loop catch; see antiscatter twin)")
     g.add_argument("--strategy", choices=("auto", "none", "dim", "flash", "coast"),
-                   help="auto (default): coast with the camera, else none; none: holes from each frame's "
+                   help="auto (default): dim with tracking on with the camera, else none; none: holes from each frame's "
                         "detections; dim: holes at --dim-level so "
                         "darkened particles stay visible; flash: a uniform --flash-level frame before each "
                         "capture, the pattern the rest of the time (mode single); coast: tracked holes stay on "
                         "particles that went dark (turns --track on)")
     g.add_argument("--dim-level", type=float, help="light left in dim holes, 0..1 (default 0.2)")
     g.add_argument("--flash-level", type=float, help="brightness of the detection flash, 0..1 (default 0.25)")
-    g.add_argument("--depth", choices=("fixed", "probe"), help="fixed (default): holes at the calibration's "
-                   "working distance; probe: each particle's depth found by bisection along its epipolar "
+    g.add_argument("--depth", choices=("auto", "fixed", "probe"), help="auto (default): probe where it can "
+                   "run, else fixed; fixed: holes at the calibration's working distance; probe: each particle's depth found by bisection along its epipolar "
                    "line under dim holes (needs --strategy dim and --calibration from two distances)")
     g = run.add_argument_group("pattern")
     g.add_argument("--projector-size", metavar="WxH", help="projector resolution (default 1280x800)")

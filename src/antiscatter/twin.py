@@ -343,6 +343,7 @@ def default_runs(baseline_m: float) -> list[TwinRun]:
             TwinRun("contrast", "calibrated")]
     runs += [TwinRun("contrast", "calibrated", strategy) for strategy in ("dim", "flash", "coast")]
     runs += [TwinRun("contrast", "calibrated", "coast", predict=True),
+             TwinRun("contrast", "calibrated", "dim", predict=True),
              TwinRun("contrast", "calibrated", "flash", predict=True)]
     if baseline_m > 0:
         runs.append(TwinRun("contrast", "range", "flash", predict=True))
