@@ -143,8 +143,8 @@ class TwinRun:
             raise ValueError(f"strategy: got {self.strategy!r}, allowed {', '.join(STRATEGIES)}")
         if self.mapping not in MAPPINGS:
             raise ValueError(f"mapping: got {self.mapping!r}, allowed {', '.join(MAPPINGS)}")
-        if self.mapping == "probe" and (self.strategy != "dim" or not self.predict):
-            raise ValueError("mapping: probe needs strategy dim (a probed particle must stay visible) and predict")
+        if self.mapping == "probe" and self.strategy != "dim":
+            raise ValueError("mapping: probe needs strategy dim (a probed particle must stay visible)")
 
 
 def _mean_over_discs(light: np.ndarray, u: np.ndarray, v: np.ndarray, r: np.ndarray) -> np.ndarray:
@@ -201,7 +201,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
         scene = make_scene(preset, rng=np.random.default_rng(seed), size=geometry.camera_size)
     detector = make_detector(run.detector) if run.detector else None
     tracker = None
-    if run.strategy == "coast" or run.predict:
+    if run.strategy == "coast" or run.predict or run.mapping == "probe":
         from .tracking import Tracker
         tracker = Tracker()
     probe = None
@@ -289,7 +289,8 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                 shown = _holes_pattern(displayed.holes(ts + sub_s / 2), geometry, run, camera_mapping, buffer,
                                        calibration)
             elif isinstance(displayed, _Probing):
-                pattern = probe.render(displayed.prediction.holes(ts + sub_s / 2), displayed.probes,
+                at = ts + sub_s / 2 if run.predict else displayed.prediction.timestamp
+                pattern = probe.render(displayed.prediction.holes(at), displayed.probes,
                                        size=geometry.projector_size, margin=run.margin_px, out=buffer)
                 shown = np.maximum(pattern.astype(np.float32) / 255.0, run.dim_level)
             else:
@@ -347,6 +348,7 @@ def default_runs(baseline_m: float) -> list[TwinRun]:
              TwinRun("contrast", "calibrated", "flash", predict=True)]
     if baseline_m > 0:
         runs.append(TwinRun("contrast", "range", "flash", predict=True))
+        runs.append(TwinRun("contrast", "probe", "dim"))
         runs.append(TwinRun("contrast", "probe", "dim", predict=True))
     return runs
 

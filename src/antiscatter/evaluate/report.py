@@ -180,7 +180,9 @@ def scoreboard(*, scenarios: dict[str, Any], catalogue_version: int, detectors: 
                f"Preset mixed, 800x600 camera at 60 Hz (4 ms exposure), 1280x800 projector at 120 Hz, "
                f"{twin_frames} frames per run. Removed = backscatter withheld from particles, kept = scene "
                "light left on (1 = full lamp). Holes drawn with the twin's exact geometry at the working "
-               "depth (\"calibrated\"), or stretched over each particle's disparity range (\"range\").", ""]
+               "depth (\"calibrated\"), stretched over each particle's disparity range (\"range\"), or "
+               "at each track's depth found by bisection under dim holes (\"probe\"). The detector is told "
+               "the light its exposure got (compensation).", ""]
         rows = _twin_rows(twin_frames, log)
         md += _table(rows, [("baseline_m", "baseline (m)", "{:g}"), ("latency_ms", "latency (ms)", "{:g}"),
                             ("run", "system", ""), ("backscatter_removed", "removed", "{:.3f}"),
