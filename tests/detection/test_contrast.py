@@ -208,3 +208,21 @@ def test_the_lamps_own_pattern_on_the_background_is_not_taken_for_particles():
         counts[informed] = sum(len(f) for f in found[20:])
     assert counts[True] <= 9 + 3  # the particle in each of the 9 frames, at most a few spots more
     assert counts[False] > counts[True] + 10  # uninformed, the lit-again patch is "particles"
+
+
+def test_pixels_the_lamp_left_dark_keep_their_background():
+    rng = np.random.default_rng(4)
+    scene_bg = np.full((240, 320), 70.0)
+    detector = make_detector("contrast")
+    lit = np.ones((240, 320), np.float32)
+    dark = lit.copy()
+    dark[100:140, 100:140] = 0.0  # a black hole over the background for a while
+    for lamp in [lit] * 18 + [dark] * 8 + [lit]:
+        detector.set_light(lamp)
+        found = detector.detect(np.clip(scene_bg * lamp + rng.normal(0, 1.5, lamp.shape), 0, 255).astype(np.uint8))
+    assert len(found) == 0  # lit again, the patch is still plain background: nothing to find
+    particle = np.clip(scene_bg + rng.normal(0, 1.5, lit.shape), 0, 255)
+    cv2.circle(particle, (120, 120), 4, 200, -1)  # a particle where the hole was: found at once
+    detector.set_light(lit)
+    found = detector.detect(particle.astype(np.uint8))
+    assert (np.hypot(found.centres[:, 0] - 120, found.centres[:, 1] - 120) < 1.5).any()

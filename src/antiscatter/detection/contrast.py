@@ -193,16 +193,24 @@ class BackgroundModel:
             self._next = 0
         return self.base, self.limit
 
-    def _measure_noise(self, half: np.ndarray, band: int) -> None:
+    def _measure_noise(self, half: np.ndarray, band: int, frozen: np.ndarray | None = None) -> None:
         """Particles only ever add light, so the noise is measured on the *dark* side:
         per coarse cell, the mean of max(base - frame, 0), which for symmetric noise
-        of spread s is s / sqrt(2 pi), whatever bright particles the cell holds."""
+        of spread s is s / sqrt(2 pi), whatever bright particles the cell holds.
+        ``frozen`` pixels (unlit) are left out; a cell that is mostly frozen keeps its value."""
         r0, r1, c0, c1 = self._rows(band, half.shape[0])
         if c1 <= c0:
             return
         deficit = cv2.subtract(self.base[r0:r1], half[r0:r1]).astype(np.float32)
-        cv2.resize(deficit, (self._deficit.shape[1], c1 - c0), dst=self._deficit[c0:c1],
-                   interpolation=cv2.INTER_AREA)
+        size = (self._deficit.shape[1], c1 - c0)
+        if frozen is None or not frozen[r0:r1].any():
+            cv2.resize(deficit, size, dst=self._deficit[c0:c1], interpolation=cv2.INTER_AREA)
+            return
+        live = (frozen[r0:r1] == 0).astype(np.float32)
+        total = cv2.resize(deficit * live, size, interpolation=cv2.INTER_AREA)
+        share = cv2.resize(live, size, interpolation=cv2.INTER_AREA)
+        measured = share > 0.25
+        self._deficit[c0:c1][measured] = total[measured] / share[measured]
 
     def _update_limit(self, shape: tuple[int, int]) -> None:
         """noise (3x3-cell median of the dark-side spread, so a few cells of particles
@@ -218,8 +226,10 @@ class BackgroundModel:
     #: frames' static scene is absorbed in about PERSIST / 2 frames instead of PERSIST
     WARMUP = 16
 
-    def learn(self, half: np.ndarray, mask: np.ndarray) -> None:
-        """Update one band from this frame (``mask``: uint8, 255 = particle candidate).
+    def learn(self, half: np.ndarray, mask: np.ndarray, frozen: np.ndarray | None = None) -> None:
+        """Update one band from this frame (``mask``: uint8, 255 = particle candidate; ``frozen``:
+        uint8, 255 = pixels this frame says nothing about -- left unlit by the lamp -- which keep
+        their background).
 
         Pixels without a particle (the mask grown by one pixel) learn at the full
         rate.  Under a particle a pixel learns at a quarter of it, so moving
@@ -244,32 +254,36 @@ class BackgroundModel:
         self._frames += 1
         if warm:
             for band in range(self.bands):
-                self._learn_band(half, mask, band, first, per_update=1, needed=max(2, self.PERSIST // 2))
+                self._learn_band(half, mask, band, first, per_update=1, needed=max(2, self.PERSIST // 2),
+                                 frozen=frozen)
             self._next = 0
             self._update_limit(half.shape)
             return
         band = self._next
         self._next = (band + 1) % self.bands
         self._learn_band(half, mask, band, first, per_update=self.bands,
-                         needed=max(2, -(-self.PERSIST // self.bands)))
+                         needed=max(2, -(-self.PERSIST // self.bands)), frozen=frozen)
         if self._next == 0:  # a whole cycle of bands: the noise map has been renewed
             self._update_limit(half.shape)
 
     def _learn_band(self, half: np.ndarray, mask: np.ndarray, band: int, first: bool, *, per_update: int,
-                    needed: int) -> None:
+                    needed: int, frozen: np.ndarray | None = None) -> None:
         """Learn the rows of ``band``; ``per_update`` frames pass between its updates, ``needed``
         steady updates make a "particle" scene."""
         h, w = half.shape
         r0, r1, c0, c1 = self._rows(band, h)
         if r1 <= r0:
             return
-        self._measure_noise(half, band)  # against the base this frame was thresholded with
+        self._measure_noise(half, band, frozen)  # against the base this frame was thresholded with
         frame = half[r0:r1]
         top, bottom = max(r0 - 1, 0), min(r1 + 1, h)
         particles = cv2.dilate(mask[top:bottom], None)[r0 - top:r0 - top + (r1 - r0)]
         updates = int(self._updates[band])
         rate = min(1.0, max(self.alpha * per_update, 1.0 / (updates + 2)))
         background = self.background[r0:r1]
+        live = None if frozen is None else cv2.bitwise_not(frozen[r0:r1])  # pixels that may learn
+        if live is not None:
+            particles = cv2.bitwise_or(particles, frozen[r0:r1])
         if not first:
             change = cv2.absdiff(frame, self._previous[r0:r1])
             steady = cv2.bitwise_and(cv2.compare(change, self.limit[r0:r1], cv2.CMP_LE), particles)
@@ -279,7 +293,7 @@ class BackgroundModel:
             scene = cv2.compare(persist, needed, cv2.CMP_GE)
             cv2.accumulateWeighted(frame, background, min(1.0, 4 * rate), mask=scene)
             self._previous[r0:r1] = frame
-        cv2.accumulateWeighted(frame, background, rate / 4)
+        cv2.accumulateWeighted(frame, background, rate / 4, mask=live)
         cv2.accumulateWeighted(frame, background, rate * 0.75, mask=cv2.bitwise_not(particles))
         cv2.convertScaleAbs(background, dst=self.base[r0:r1])
         self._updates[band] = updates + 1
@@ -568,10 +582,13 @@ def build_contrast(params: ContrastParams) -> Detector:
 
     def stage_background(half: np.ndarray):
         light = _working_light(state.get("light"), half.shape, state["factor"])
+        state["frozen"] = None
         if light is None:
             return half, half, *model.estimate(half)
-        # the model learns the scene under the full lamp; this frame's background is that times the light
+        # the model learns the scene under the full lamp; this frame's background is that times the
+        # light; where the lamp gave less than UNLIT of its light the frame says nothing about it
         reflectance = cv2.divide(half, light, scale=255)
+        state["frozen"] = cv2.compare(light, UNLIT * 255, cv2.CMP_LT)
         base, limit = model.estimate(reflectance)
         return half, reflectance, cv2.multiply(base, light, scale=1 / 255), limit
 
@@ -592,7 +609,7 @@ def build_contrast(params: ContrastParams) -> Detector:
 
     def stage_update(value) -> Detections:
         reflectance, mask, found = value
-        model.learn(reflectance, mask)
+        model.learn(reflectance, mask, state.get("frozen"))
         return found
 
     stages = (
@@ -604,6 +621,10 @@ def build_contrast(params: ContrastParams) -> Detector:
         Stage("update", "Background Update", stage_update),
     )
     return Detector("contrast", stages, params, reset=model.reset, set_light=set_light)
+
+
+#: below this share of the lamp's light a pixel's brightness says too little about the scene to learn from
+UNLIT = 0.1
 
 
 def _working_light(light: np.ndarray | None, shape: tuple[int, int], factor: int) -> np.ndarray | None:
