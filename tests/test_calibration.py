@@ -119,3 +119,63 @@ def test_calibrate_command_and_its_use_in_run_and_twin(tmp_path, cli):
     assert bad.code == 2 and "made for camera" in bad.err
     missing = cli("run", "--calibration", str(tmp_path / "none.json"))
     assert missing.code == 2 and "no such calibration file" in missing.err
+
+
+def test_dense_decoding_agrees_with_opencvs_decoder():
+    from antiscatter.calibration import decode_dense, gray_code_patterns
+
+    geometry = TwinGeometry(camera_size=(200, 150), projector_size=(320, 200), baseline_m=0.0)
+    rig = TwinRig(geometry, 1.0, noise=2.0)
+    code, patterns, white, black = gray_code_patterns(geometry.projector_size)
+    captures = [rig.capture(p) for p in patterns]
+    lit, dark = rig.capture(white), rig.capture(black)
+    column, row = decode_dense(captures, lit, dark, geometry.projector_size)
+    code.setWhiteThreshold(5)
+    code.setBlackThreshold(40)
+    checked = 0
+    for y in range(5, 150, 13):
+        for x in range(5, 200, 17):
+            error, pixel = code.getProjPixel(captures, x, y)
+            if not error and np.isfinite(column[y, x]):
+                assert (column[y, x], row[y, x]) == (pixel[0], pixel[1])
+                checked += 1
+    assert checked > 25  # every pixel both decoded agrees exactly
+    truth = cv2.perspectiveTransform(np.array([[[100.0, 75.0]]]), rig.truth)[0, 0]
+    assert abs(column[75, 100] - truth[0]) <= 1 and abs(row[75, 100] - truth[1]) <= 1
+
+
+def test_board_calibration_recovers_intrinsics_baseline_and_mapping():
+    from antiscatter.calibration import Board, BoardRig, calibrate_board, twin_board_poses
+
+    geometry = TwinGeometry(baseline_m=0.12)  # the defaults of 'calibrate --twin --board 9x6:0.04'
+    board = Board(9, 6, 0.04)
+    rigs = [BoardRig(geometry, r, t, board=board, rng=np.random.default_rng(i))
+            for i, (r, t) in enumerate(twin_board_poses(8, board=board))]
+    calibration = calibrate_board([rig.capture for rig in rigs], board=board, camera_size=geometry.camera_size,
+                                  projector_size=geometry.projector_size)
+    stereo = calibration.stereo
+    assert stereo.camera_matrix[0, 0] == pytest.approx(geometry.camera_focal, rel=0.01)
+    assert stereo.projector_matrix[0, 0] == pytest.approx(geometry.projector_focal, rel=0.01)
+    assert calibration.baseline_m == pytest.approx(0.12, abs=0.002)
+    np.testing.assert_allclose(stereo.rotation, np.eye(3), atol=0.01)  # the twin's axes are parallel
+    for depth in (0.5, 1.0, 2.0):
+        error = mapping_error_px(calibration.mapping_at(depth), geometry.plane_mapping(depth),
+                                 geometry.camera_size, geometry.projector_size)
+        assert error["max_px"] < 1.0, (depth, error)
+
+
+def test_board_calibration_file_round_trip_and_needs_three_poses(tmp_path, cli):
+    from antiscatter.calibration import Board, calibrate_board
+
+    path = tmp_path / "board.json"
+    result = cli("calibrate", str(path), "--twin", "--board", "7x5:0.05", "--poses", "5", "--size", "480x360")
+    assert result.code == 0, result.err
+    assert "baseline 0.1" in result.out and "against the twin's true geometry" in result.out
+    loaded = load_calibration(path)
+    assert loaded.stereo is not None and loaded.baseline_m == pytest.approx(0.12, abs=0.003)
+    np.testing.assert_allclose(loaded.mapping_at(1.0), loaded.stereo.plane_mapping(1.0))
+    bad = cli("calibrate", str(tmp_path / "x.json"), "--twin", "--board", "9x6")
+    assert bad.code == 2 and "expected COLSxROWS:SQUARE_M" in bad.err
+    blank = lambda pattern: np.zeros((120, 160), np.uint8)  # noqa: E731 - a camera seeing nothing
+    with pytest.raises(UsageError, match="at least 3 are needed"):
+        calibrate_board([blank] * 3, board=Board(), camera_size=(160, 120), projector_size=(320, 200))

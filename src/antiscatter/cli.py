@@ -255,6 +255,10 @@ def build_parser() -> argparse.ArgumentParser:
     ca.add_argument("out", help="calibration file to write (JSON), for run/twin --calibration")
     ca.add_argument("--twin", action="store_true", help="calibrate the digital twin instead of hardware")
     ca.add_argument("--depths", default="0.5,2.0", help="target distances in metres (default 0.5,2.0)")
+    ca.add_argument("--board", metavar="COLSxROWS:SQUARE_M", help="calibrate fully with a checkerboard instead "
+                    "of a plain target (Moreno-Taubin: camera and projector intrinsics and their pose, "
+                    "stereoCalibrate), e.g. 9x6:0.04 = 9 x 6 inner corners, 4 cm squares")
+    ca.add_argument("--poses", type=int, default=8, help="with --board: board poses (default 8, at least 3)")
     ca.add_argument("--baseline-m", type=float, default=0.12, help="twin: camera-projector baseline (default 0.12)")
     ca.add_argument("--size", default="800x600", metavar="WxH", help="camera frame size (default 800x600)")
     ca.add_argument("--projector-size", default="1280x800", metavar="WxH", help="projector size (default 1280x800)")
@@ -481,6 +485,8 @@ def _calibrate(args: argparse.Namespace) -> int:
         raise UsageError(f"--step {args.step}: allowed >= 1")
     check_output_path(args.out, "calibrate")
     focal = (size[0] / 2) / math.tan(math.radians(args.hfov_deg) / 2)
+    if args.board:
+        return _calibrate_board(args, size, projector)
     if args.twin:
         geometry = TwinGeometry(camera_size=size, projector_size=projector, baseline_m=args.baseline_m,
                                 hfov_deg=args.hfov_deg)
@@ -510,6 +516,77 @@ def _calibrate(args: argparse.Namespace) -> int:
           + (f"; baseline {calibration.baseline_m:.4f} m" if calibration.baseline_m is not None else ""))
     if args.twin:
         for d in sorted(set(depths) | {calibration.working_depth_m}):
+            error = mapping_error_px(calibration.mapping_at(d), geometry.plane_mapping(d), size, projector)
+            print(f"  against the twin's true geometry at {d:.2f} m: mean {error['mean_px']:.2f} px, "
+                  f"max {error['max_px']:.2f} px")
+    return 0
+
+
+def _parse_board(text: str):
+    from .calibration import Board
+
+    try:
+        corners, square = text.lower().split(":")
+        cols, rows = (int(v) for v in corners.split("x"))
+        board = Board(cols, rows, float(square))
+    except ValueError:
+        board = None
+    if board is None or min(board.cols, board.rows) < 3 or not board.square_m > 0:
+        raise UsageError(f"--board {text!r}: expected COLSxROWS:SQUARE_M with at least 3 x 3 inner corners and "
+                         "a square size in metres, e.g. 9x6:0.04")
+    return board
+
+
+def _calibrate_board(args: argparse.Namespace, size: tuple[int, int], projector: tuple[int, int]) -> int:
+    """``calibrate --board``: the full stereo calibration (twin or hardware)."""
+    from .calibration import BoardRig, HardwareRig, calibrate_board, mapping_error_px, twin_board_poses
+    from .twin import TwinGeometry
+
+    board = _parse_board(args.board)
+    if args.poses < 3:
+        raise UsageError(f"--poses {args.poses}: allowed >= 3")
+    if args.twin:
+        geometry = TwinGeometry(camera_size=size, projector_size=projector, baseline_m=args.baseline_m,
+                                hfov_deg=args.hfov_deg)
+        rigs = [BoardRig(geometry, r, t, board=board, rng=np.random.default_rng(i))
+                for i, (r, t) in enumerate(twin_board_poses(args.poses, board=board, baseline_m=args.baseline_m))]
+        calibration = calibrate_board([rig.capture for rig in rigs], board=board, camera_size=size,
+                                      projector_size=projector)
+    else:
+        from .outputs import open_output
+        from .sources import open_source
+
+        with open_source(args.source, size=size) as source:
+            outputs = [open_output(o) for o in (args.output or ["framebuffer"])]
+            try:
+                rig = HardwareRig(source, outputs)
+
+                def posed(k: int):
+                    asked = []
+
+                    def capture(pattern: np.ndarray) -> np.ndarray:
+                        if not asked:  # calibrate_board starts each pose with its first capture
+                            asked.append(True)
+                            input(f"pose {k + 1} of {args.poses}: hold the board tilted a new way, wholly in view "
+                                  "and lit, then press Enter ")
+                        return rig.capture(pattern)
+                    return capture
+
+                calibration = calibrate_board([posed(k) for k in range(args.poses)], board=board,
+                                              camera_size=source.size, projector_size=projector)
+            finally:
+                for o in outputs:
+                    o.close()
+    calibration.save(args.out)
+    s = calibration.stereo
+    print(f"wrote {args.out}: reprojection rms camera {calibration.errors_px[0]:.2f} px, projector "
+          f"{calibration.errors_px[1]:.2f} px, pair {calibration.errors_px[2]:.2f} px; focal lengths camera "
+          f"{s.camera_matrix[0, 0]:.1f} px, projector {s.projector_matrix[0, 0]:.1f} px; baseline "
+          f"{calibration.baseline_m:.4f} m")
+    if args.twin:
+        print(f"  twin truth: focal lengths {geometry.camera_focal:.1f} px, {geometry.projector_focal:.1f} px; "
+              f"baseline {geometry.baseline_m:.4f} m")
+        for d in (0.5, 1.0, 2.0):
             error = mapping_error_px(calibration.mapping_at(d), geometry.plane_mapping(d), size, projector)
             print(f"  against the twin's true geometry at {d:.2f} m: mean {error['mean_px']:.2f} px, "
                   f"max {error['max_px']:.2f} px")
