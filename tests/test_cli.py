@@ -390,3 +390,39 @@ def test_depth_probe_draws_each_unknown_particle_over_its_epipolar_segment(tmp_p
     bad = cli("run", str(frames), "--depth", "probe", "--strategy", "coast", "--calibration", str(calibration),
               "--output", "none")
     assert bad.code == 2 and "probe needs light.strategy dim" in bad.err
+
+
+def test_the_vehicles_default_configuration_runs_on_a_live_source(tmp_path):
+    """Camera as source, nothing else said: dim holes, tracking with prediction, compensation --
+    and with a board calibration, depth probing -- on a free-running source, end to end."""
+    import io
+
+    from antiscatter.config import load_config
+    from antiscatter.runtime import run
+    from antiscatter.sources.base import Frame, FrameSource
+
+    class LiveCamera(FrameSource):
+        live, size = True, (160, 120)
+
+        def __init__(self):
+            self.count = 0
+
+        def read(self):
+            self.count += 1
+            if self.count > 20:
+                return None
+            image = draw_discs(self.size, [(60.0 + 2 * self.count, 50.0, 4.0), (110.0, 80.0 - self.count, 3.0)])
+            return Frame(image, self.count - 1, FrameSource.now_ns())
+
+    calibration = tmp_path / "cal.json"
+    assert antiscatter("calibrate", str(calibration), "--twin", "--size", "160x120").returncode == 0
+    for extra in ({}, {"pattern": {"calibration": str(calibration)}}):
+        config = load_config(overrides={"source": {"spec": "camera"}, "output": {"outputs": (f"files:{tmp_path / 'p'}",)},
+                                        "run": {"detections": str(tmp_path / "d.csv")}, **extra})
+        assert config.light.strategy == "dim" and config.track.enabled and config.light.compensate
+        assert config.light.depth == ("probe" if extra else "fixed")
+        summary = run(config, source=LiveCamera(), log=io.StringIO(), out=io.StringIO())
+        assert summary.frames == 20
+        rows = list(csv.DictReader((tmp_path / "d.csv").open()))
+        assert len(rows) >= 30 and all(int(r["track_id"]) > 0 for r in rows)
+        assert len({r["track_id"] for r in rows}) <= 6  # two particles, few identities
