@@ -470,7 +470,10 @@ def _necked(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, n
     area / (2 pi mean squared distance from its centroid) below 0.8, where a disc
     gives 1 and two touching equal discs 2/3."""
     area = np.bincount(lab, minlength=n)
-    sel = candidates[lab] & (area[lab] >= _MIN_CORE)
+    candidates = candidates & (area >= _MIN_CORE)
+    if candidates.any():  # a whole component that is plainly a disc has a disc for a core: skip it
+        candidates &= ~_compact(lab, x.astype(np.float64), y.astype(np.float64), n, 0.95)
+    sel = candidates[lab]
     if not sel.any():
         return np.empty(0, np.intp)
     lab, x, y, weight = lab[sel], x[sel], y[sel], weight[sel]
@@ -478,11 +481,16 @@ def _necked(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, n
     core = weight >= 0.5 * top[lab]
     lab, x, y = lab[core], x[core].astype(np.float64), y[core].astype(np.float64)
     area = np.bincount(lab, minlength=n)
+    return np.flatnonzero((area >= _MIN_CORE) & ~_compact(lab, x, y, n, 0.8))
+
+
+def _compact(lab: np.ndarray, x: np.ndarray, y: np.ndarray, n: int, ratio: float) -> np.ndarray:
+    """Per label: area >= ratio * 2 pi (mean squared distance of its pixels from their centroid)."""
+    area = np.bincount(lab, minlength=n)
     safe = np.maximum(area, 1)
     mx, my = np.bincount(lab, x, n) / safe, np.bincount(lab, y, n) / safe
     msd = np.bincount(lab, x * x + y * y, n) / safe - mx * mx - my * my
-    compact = area >= 0.8 * 2 * np.pi * np.maximum(msd, 1e-9)
-    return np.flatnonzero((area >= _MIN_CORE) & ~compact)
+    return area >= ratio * 2 * np.pi * np.maximum(msd, 1e-9)
 
 
 def _separate(comp: np.ndarray, py: np.ndarray, px: np.ndarray, value: np.ndarray, excess: np.ndarray,
