@@ -360,7 +360,9 @@ def test_compensation_tells_the_detector_the_light_of_the_last_pattern(tmp_path,
     # the particle at (30, 40) had a dim hole: its place is dark in the light map, the rest lit
     assert seen[0][20, 15] == 51 and seen[0][100 // 2 - 10, 150 // 2] == 255
     assert load_config().light.compensate is False  # replays never saw the light
-    assert load_config(overrides={"source": {"spec": "camera"}}).light.compensate is True
+    assert load_config(overrides={"source": {"spec": "camera"}}).light.compensate is False  # no mapping known
+    mapped = {"source": {"spec": "camera"}, "pattern": {"mapping": [[8, 0, 0], [0, 6.67, 0], [0, 0, 1]]}}
+    assert load_config(overrides=mapped).light.compensate is True
 
 
 def test_depth_probe_draws_each_unknown_particle_over_its_epipolar_segment(tmp_path, cli):
@@ -416,11 +418,14 @@ def test_the_vehicles_default_configuration_runs_on_a_live_source(tmp_path):
 
     calibration = tmp_path / "cal.json"
     assert antiscatter("calibrate", str(calibration), "--twin", "--size", "160x120").returncode == 0
-    for extra in ({}, {"pattern": {"calibration": str(calibration)}}):
+    from antiscatter.calibration import load_calibration
+
+    mapping = load_calibration(calibration).homography.tolist()
+    for extra in ({}, {"pattern": {"calibration": str(calibration), "mapping": mapping}}):
         config = load_config(overrides={"source": {"spec": "camera"}, "output": {"outputs": (f"files:{tmp_path / 'p'}",)},
                                         "run": {"detections": str(tmp_path / "d.csv")}, **extra})
-        assert config.light.strategy == "dim" and config.track.enabled and config.light.compensate
-        assert config.light.depth == ("probe" if extra else "fixed")
+        assert config.light.strategy == "dim" and config.track.enabled
+        assert config.light.depth == ("probe" if extra else "fixed") and config.light.compensate == bool(extra)
         summary = run(config, source=LiveCamera(), log=io.StringIO(), out=io.StringIO())
         assert summary.frames == 20
         rows = list(csv.DictReader((tmp_path / "d.csv").open()))

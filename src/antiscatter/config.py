@@ -174,7 +174,8 @@ class LightConfig:
     compensate: tell the detector the light each exposure got -- the pattern shown, taken back
         to camera pixels through the inverse mapping -- so the holes' imprint on the background
         is not taken for particles (mode single); None = on with the camera as source (files and
-        the simulator never saw the pattern).
+        the simulator never saw the pattern) and a mapping or calibration is configured (with the
+        guessed identity mapping the light map would be wrong).
     depth: ``auto`` (default: ``probe`` where it can run -- strategy dim, mode single, a
         calibration with a baseline -- else ``fixed``), ``fixed`` (holes where the mapping puts a
         particle at the calibration's working distance) or ``probe`` (each track's depth found by bisection along its epipolar line,
@@ -410,8 +411,8 @@ def load_config(path: str | Path | None = None, overrides: dict[str, dict[str, A
         probe = (light.strategy == "dim" and sections["run"].mode == "single"
                  and _has_baseline(sections["pattern"].calibration))
         light = dataclasses.replace(light, depth="probe" if probe else "fixed")
-    if light.compensate is None:
-        light = dataclasses.replace(light, compensate=camera)
+    if light.compensate is None:  # only with a real mapping: a guessed one would put the light map wrong
+        light = dataclasses.replace(light, compensate=camera and bool(sections["pattern"].mapping))
     if light.strategy == "flash" and sections["run"].mode != "single":
         raise UsageError(f"light.strategy: flash needs run.mode single (the flash, the capture and the pattern "
                          f"take turns), got mode {sections['run'].mode}")

@@ -217,7 +217,6 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
     else:
         camera_mapping = geometry.plane_mapping(geometry.working_depth_m)
     # where the system believes its light lands behind the particles: the far working distance
-    # (the identity runs know no geometry: their own mapping)
     far_mapping = (camera_mapping if run.mapping == "identity" else
                    calibration.mapping_at(geometry.far_m) if calibration is not None else
                    geometry.plane_mapping(geometry.far_m))
@@ -312,9 +311,10 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                 exposure_light = (_mean_over_discs(shown, u, v, np.maximum(rp, 0.5)), bg)
                 # the system knows the light it put on the scene during this exposure: its
                 # pattern, taken back to camera pixels on a plane at the far working distance
-                detector.set_light(cv2.warpPerspective(shown, camera_from_far, geometry.camera_size,
-                                                       flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                                                       borderValue=1.0))
+                if run.mapping != "identity":  # as run: no compensation without a calibration
+                    detector.set_light(cv2.warpPerspective(shown, camera_from_far, geometry.camera_size,
+                                                           flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                                                           borderValue=1.0))
                 queue.append(_process(scene.render(light=exposure_light), t0))
                 queue.sort(key=lambda item: item[0])
         frame_on /= sub_per_frame

@@ -181,8 +181,8 @@ def scoreboard(*, scenarios: dict[str, Any], catalogue_version: int, detectors: 
                f"{twin_frames} frames per run. Removed = backscatter withheld from particles, kept = scene "
                "light left on (1 = full lamp). Holes drawn with the twin's exact geometry at the working "
                "depth (\"calibrated\"), stretched over each particle's disparity range (\"range\"), or "
-               "at each track's depth found by bisection under dim holes (\"probe\"). The detector is told "
-               "the light its exposure got (compensation).", ""]
+               "at each track's depth found by bisection under dim holes (\"probe\"). With a mapping other "
+               "than identity the detector is told the light its exposure got (compensation).", ""]
         rows = _twin_rows(twin_frames, log)
         md += _table(rows, [("baseline_m", "baseline (m)", "{:g}"), ("latency_ms", "latency (ms)", "{:g}"),
                             ("run", "system", ""), ("backscatter_removed", "removed", "{:.3f}"),
