@@ -1,6 +1,8 @@
 """The digital twin's physics on hand-made cases, and the twin command."""
 
 import json
+
+import cv2
 import numpy as np
 import pytest
 
@@ -16,7 +18,14 @@ def test_a_particle_under_full_white_and_all_black_light():
     np.testing.assert_allclose(_mean_over_discs(np.zeros((200, 300)), u, v, r), [0.0, 0.0])
     half = np.ones((200, 300))
     half[:, 100:] = 0
-    assert _mean_over_discs(half, np.array([100.0]), np.array([80.0]), np.array([3.0]))[0] == pytest.approx(3 / 7)
+    # the edge lies between pixels 99 and 100, half a pixel left of the centre: the share of a
+    # radius-3 disc left of it is (acos(d) - d sqrt(1 - d^2)) / pi with d = 0.5 / 3
+    d = 0.5 / 3
+    share = (np.arccos(d) - d * np.sqrt(1 - d * d)) / np.pi
+    assert _mean_over_discs(half, np.array([100.0]), np.array([80.0]), np.array([3.0]))[0] == pytest.approx(share, abs=0.03)
+    hole = np.ones((200, 300))
+    cv2.circle(hole, (150, 100), 10, 0.0, -1)  # a hole that just covers a disc of radius 10 darkens it all
+    assert _mean_over_discs(hole, np.array([150.0]), np.array([100.0]), np.array([10.0]))[0] < 0.02
 
 
 def test_disparity_of_a_known_baseline():

@@ -147,20 +147,21 @@ class TwinRun:
             raise ValueError("mapping: probe needs strategy dim (a probed particle must stay visible)")
 
 
+#: 32 points spread evenly over the unit disc (a sunflower spiral): a disc's mean light is their mean
+_DISC = np.array([[math.sqrt((i + 0.5) / 32) * math.cos(i * 2.399963229728653),
+                   math.sqrt((i + 0.5) / 32) * math.sin(i * 2.399963229728653)] for i in range(32)])
+
+
 def _mean_over_discs(light: np.ndarray, u: np.ndarray, v: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """Mean of ``light`` ((H, W) float) over the square of half-side r around each (u, v); 1 outside."""
+    """Mean of ``light`` ((H, W) float) over each disc of radius r around (u, v), sampled at 32
+    points spread evenly over it (nearest pixel); points outside the projector's field get no light."""
     h, w = light.shape
-    integral = cv2.integral(light.astype(np.float64))
-    x0 = np.clip(np.floor(u - r).astype(int), 0, w)
-    x1 = np.clip(np.floor(u + r).astype(int) + 1, 0, w)
-    y0 = np.clip(np.floor(v - r).astype(int), 0, h)
-    y1 = np.clip(np.floor(v + r).astype(int) + 1, 0, h)
-    area = (x1 - x0) * (y1 - y0)
-    total = integral[y1, x1] - integral[y0, x1] - integral[y1, x0] + integral[y0, x0]
-    inside = area > 0
-    out = np.zeros(len(u))  # outside the projector's field nothing lights a particle
-    out[inside] = total[inside] / area[inside]
-    return out
+    r = np.asarray(r, np.float64)
+    x = np.rint(np.asarray(u, np.float64)[:, None] + r[:, None] * _DISC[None, :, 0]).astype(np.int64)
+    y = np.rint(np.asarray(v, np.float64)[:, None] + r[:, None] * _DISC[None, :, 1]).astype(np.int64)
+    inside = (x >= 0) & (x < w) & (y >= 0) & (y < h)
+    values = np.where(inside, light[np.clip(y, 0, h - 1), np.clip(x, 0, w - 1)], 0.0)
+    return values.mean(axis=1) if len(values) else np.zeros(0)
 
 
 def _holes_pattern(holes: Detections, geometry: TwinGeometry, run: TwinRun, camera_mapping: np.ndarray,
