@@ -132,6 +132,8 @@ class TrackConfig:
     latency_ms: capture-to-light time to predict over; negative = measured by the runtime.
     confirm_hits: detections before a track is confirmed (and predicted).
     max_misses: frames a confirmed track keeps its hole without a detection (coasting).
+    max_dark: frames a confirmed track keeps its hole while its particle was under it during the
+        exposure (its misses are expected); 0 = counted as ordinary misses (default; see Tracker).
     """
 
     enabled: bool = False
@@ -139,6 +141,7 @@ class TrackConfig:
     latency_ms: float = -1.0
     confirm_hits: int = 3
     max_misses: int = 5
+    max_dark: int = 0
 
     def __post_init__(self) -> None:
         if not math.isfinite(self.latency_ms):
@@ -147,6 +150,8 @@ class TrackConfig:
             raise ValueError(f"confirm_hits: got {self.confirm_hits}, allowed >= 1")
         if self.max_misses < 0:
             raise ValueError(f"max_misses: got {self.max_misses}, allowed >= 0")
+        if self.max_dark < 0:
+            raise ValueError(f"max_dark: got {self.max_dark}, allowed >= 0 (0 = off)")
 
 
 STRATEGIES = ("none", "dim", "flash", "coast")

@@ -268,6 +268,7 @@ class _Record:
     t_processed: int  # when rendering began
     t_pattern: int  # when rendering ended
     probes: dict = field(default_factory=dict)  # depth probing: each track's interval in this pattern
+    hole_ids: Any = None  # the track ids of this pattern's holes
 
 
 class _Pipeline:
@@ -295,6 +296,7 @@ class _Pipeline:
         self.mapping = scale_mapping(source.size, self.projector_size) if mapping is None else mapping
         self.probe = None
         self.shown_probes: dict = {}  # each track's interval in the pattern the next exposure sees
+        self.unlit_ids: np.ndarray | None = None  # tracks whose holes the next exposure is taken under
         if config.light.depth == "probe":
             from .probe import DepthProbe
 
@@ -349,7 +351,7 @@ class _Pipeline:
         if self.tracker is not None:
             t_track = clock()
             captured = frame.timestamp_ns / 1e9
-            tracks = self.tracker.update(detections, captured)
+            tracks = self.tracker.update(detections, captured, unlit=self.unlit_ids)
             track_ids = tracks.detection_ids
             if tc.predict:
                 latency = tc.latency_ms / 1e3 if tc.latency_ms >= 0 else self.latency_estimate
@@ -371,6 +373,8 @@ class _Pipeline:
         t_start = self.clock()
         buffer = self.buffers[self.next_buffer]
         self.next_buffer = (self.next_buffer + 1) % len(self.buffers)
+        holes = rec.pattern[0] if self.probe is not None else rec.pattern
+        rec.hole_ids = holes.track_ids
         if self.probe is not None:
             holes, probes = rec.pattern
             rec.pattern = self.probe.render(holes, probes, size=self.projector_size,
@@ -406,6 +410,8 @@ class _Pipeline:
         t_out = clock()
         if self.probe is not None:
             self.shown_probes = rec.probes if self.light_on else {}
+        # single mode: the next exposure is taken under this pattern (not under a flash)
+        self.unlit_ids = rec.hole_ids if self.light_on and self.flash_image is None else None
         if self.compensate:  # what the next exposure will be lit by: this pattern on the scene
             self.detector.set_light(None if not self.light_on else cv2.warpPerspective(
                 shown, self.camera_from_projector, self.light_size, flags=cv2.INTER_LINEAR,
@@ -526,7 +532,7 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
     tracker = None
     if tc.enabled:
         from .tracking import Tracker
-        tracker = Tracker(confirm_hits=tc.confirm_hits, max_misses=tc.max_misses)
+        tracker = Tracker(confirm_hits=tc.confirm_hits, max_misses=tc.max_misses, max_dark=tc.max_dark)
     if tracker is None:
         timed.remove("Tracking Duration (s)")
     summary.durations = {c: RunningStats() for c in timed}

@@ -51,6 +51,14 @@ from .tracking import Prediction
 
 
 @dataclass(frozen=True)
+class _Fixed:
+    """A queued pattern drawn once (light, 0..1) and the track ids of its holes."""
+
+    light: np.ndarray
+    ids: np.ndarray
+
+
+@dataclass(frozen=True)
 class _Probing:
     """A queued pattern of the ``probe`` mapping: tracks frozen at one update, and each one's interval."""
 
@@ -210,6 +218,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
         probe = DepthProbe(calibration.mapping_at if calibration is not None else geometry.plane_mapping,
                            near_m=geometry.near_m, far_m=geometry.far_m, dim_level=run.dim_level)
     shown_probes: dict = {}  # the intervals the pattern on during the last exposure gave each track
+    shown_ids = None  # the tracks whose holes were on during the last exposure
     pw, ph = geometry.projector_size
     if run.mapping == "identity":
         camera_mapping = scale_mapping(geometry.camera_size, geometry.projector_size)
@@ -245,7 +254,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
         ready = t0 + geometry.exposure_s + latency
         on_at = math.ceil(ready / sub_s - 1e-9) * sub_s
         if tracker is not None:
-            tracks = tracker.update(found, t0 + geometry.exposure_s / 2)
+            tracks = tracker.update(found, t0 + geometry.exposure_s / 2, unlit=shown_ids)
             if probe is not None:
                 seen = Detections(found.centres, found.radii, found.scores, tracks.detection_ids)
                 probe.observe(seen, shown_probes, tracks.ids[tracks.confirmed & (tracks.misses > 0)])
@@ -255,9 +264,9 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
             if run.predict and run.per_refresh:
                 return on_at, tracker.snapshot()
             holes = tracker.holes(on_at + sub_s / 2 if run.predict else t0 + geometry.exposure_s / 2)
-        else:
-            holes = found
-        return on_at, _holes_pattern(holes, geometry, run, camera_mapping, buffer, calibration)
+            return on_at, _Fixed(_holes_pattern(holes, geometry, run, camera_mapping, buffer, calibration),
+                                 holes.track_ids)
+        return on_at, _holes_pattern(found, geometry, run, camera_mapping, buffer, calibration)
 
     for k in range(frames):
         if k:
@@ -281,6 +290,10 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                 displayed = queue.pop(0)[1]
             if j == 0:
                 shown_probes = displayed.probes if isinstance(displayed, _Probing) else {}
+                # the tracks whose holes this exposure is taken under (none under a flash)
+                shown_ids = (None if run.strategy == "flash" else
+                             displayed.prediction.ids if isinstance(displayed, _Probing) else
+                             displayed.ids if isinstance(displayed, (Prediction, _Fixed)) else None)
             if detector is None:
                 shown = full
             elif run.strategy == "flash" and j == 0:
@@ -293,6 +306,8 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                 pattern = probe.render(displayed.prediction.holes(at), displayed.probes,
                                        size=geometry.projector_size, margin=run.margin_px, out=buffer)
                 shown = np.maximum(pattern.astype(np.float32) / 255.0, run.dim_level)
+            elif isinstance(displayed, _Fixed):
+                shown = displayed.light
             else:
                 shown = displayed
             # the scene's state is the frame's mid-exposure; particles keep moving through the

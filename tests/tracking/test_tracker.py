@@ -169,3 +169,23 @@ def test_block_filter_equals_the_full_5x5_kalman_filter():
     np.testing.assert_allclose(tracker.x[0], x, rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose([tracker.pp[0, 0], tracker.pv[0, 0], tracker.vv[0, 0], tracker.rr[0]],
                                [P[0, 0], P[0, 2], P[2, 2], P[4, 4]], rtol=1e-9)
+
+
+def test_a_track_in_the_dark_of_its_own_hole_lives_on_with_max_dark():
+    def run(max_dark):
+        tracker = Tracker(max_dark=max_dark)
+        for f in range(4):  # confirmed, moving right at 2 px per frame
+            tracker.update(Detections([[100.0 + 2 * f, 50.0]], [3.0]), f * DT)
+        first = int(tracker.ids[0])
+        for f in range(4, 12):  # under its hole: unseen, and expected so
+            tracker.update(Detections.empty(), f * DT, unlit=np.array([first]))
+        alive = first in tracker.ids.tolist()
+        tracks = tracker.update(Detections([[100.0 + 2 * 12, 50.0]], [3.0]), 12 * DT)
+        return alive, int(tracks.detection_ids[0]) == first
+
+    assert run(10) == (True, True)  # 8 dark frames: still on its path, and the particle is found again
+    assert run(0)[0] is False  # by default expected misses count like any: deleted after 5
+    tracker = Tracker(max_dark=3)
+    tracker.update(Detections([[10.0, 10.0]], [2.0]), 0.0)
+    tracker.update(Detections.empty(), DT, unlit=np.array([int(tracker.ids[0])]))
+    assert len(tracker.ids) == 1 and len(tracker.holes(DT)) == 0  # tentative: no dark bonus, no hole
