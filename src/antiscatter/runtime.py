@@ -297,6 +297,8 @@ class _Pipeline:
         self.probe = None
         self.shown_probes: dict = {}  # each track's interval in the pattern the next exposure sees
         self.unlit_ids: np.ndarray | None = None  # tracks whose holes the next exposure is taken under
+        self.last_capture: float | None = None  # seconds, the last frame's capture time
+        self.frame_period: float | None = None  # seconds, running mean of the capture interval
         if config.light.depth == "probe":
             from .probe import DepthProbe
 
@@ -358,6 +360,13 @@ class _Pipeline:
                 holes = self.tracker.holes(captured + latency)
             else:
                 holes = self.tracker.holes(captured)
+            if self.last_capture is not None and captured > self.last_capture:
+                period = captured - self.last_capture
+                self.frame_period = period if self.frame_period is None else 0.9 * self.frame_period + 0.1 * period
+            self.last_capture = captured
+            if self.frame_period is not None and self.flash_image is None:
+                # where the tracked particles should be in the next frame: faint light there is them
+                self.detector.expect(self.tracker.holes(captured + self.frame_period))
             if self.probe is not None:  # this exposure's verdicts, then the next intervals to try
                 seen = Detections(detections.centres, detections.radii, detections.scores, tracks.detection_ids)
                 self.probe.observe(seen, self.shown_probes,

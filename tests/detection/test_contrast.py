@@ -226,3 +226,21 @@ def test_pixels_the_lamp_left_dark_keep_their_background():
     detector.set_light(lit)
     found = detector.detect(particle.astype(np.uint8))
     assert (np.hypot(found.centres[:, 0] - 120, found.centres[:, 1] - 120) < 1.5).any()
+
+
+def test_a_faint_particle_where_the_tracker_expects_one_is_found():
+    from antiscatter.detections import Detections
+
+    rng = np.random.default_rng(0)
+    frame = np.clip(40 + rng.normal(0, 2.0, (300, 400)), 0, 255)
+    cv2.circle(frame, (200, 150), 3, 40 + 4, -1)  # dimmed under its hole: 2 noise units a pixel
+    image = frame.astype(np.uint8)
+    plain = make_detector("contrast", ContrastParams(memory=0))
+    assert not (np.hypot(plain.detect(image).centres[:, 0] - 200, plain.detect(image).centres[:, 1] - 150) < 3).any()
+    told = make_detector("contrast", ContrastParams(memory=0))
+    told.expect(Detections([[200.0, 150.0]], [4.0]))
+    found = told.detect(image)
+    assert (np.hypot(found.centres[:, 0] - 200, found.centres[:, 1] - 150) < 2).any()
+    assert len(found) <= 3  # only near what was expected
+    with pytest.raises(ValueError, match=r"k_expected: got 5.0, allowed 0 < k_expected <= k \(4.0\)"):
+        ContrastParams(k_expected=5.0)

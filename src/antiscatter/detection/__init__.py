@@ -48,6 +48,9 @@ class Detector:
         exposure -- an (H, W) map in camera pixels, 1 = full lamp (any size; None = full
         everywhere) -- so the pattern's own imprint on the background is not taken for
         particles; detectors that cannot use it ignore it.
+    expect: where known particles should be in the next frame (Detections, camera pixels; None
+        = nowhere): a detector may accept fainter light there -- a tracked particle dimmed
+        under its own hole -- than it would anywhere else.
     """
 
     name: str
@@ -55,6 +58,7 @@ class Detector:
     params: Any = None
     reset: Callable[[], None] = _no_state
     set_light: Callable[[Any], None] = _no_light
+    expect: Callable[[Any], None] = _no_light
 
     def detect(self, image: np.ndarray) -> Detections:
         """Run every stage on one frame, (H, W, 3) BGR or (H, W) grey uint8."""

@@ -68,6 +68,8 @@ class ContrastParams:
     lone_k: a component of a single working pixel must exceed this many noise units (a lone noise
         spike is the commonest false alarm; a particle's light spreads over its neighbours); 0 = off
         (default 5: a Gaussian spike that high comes once in 3.5 million pixels).
+    k_expected: threshold in noise units where a tracked particle is expected (``expect``):
+        a particle dimmed under its own hole stays found (default 2.5; = k turns it off).
     """
 
     k: float = 4.0
@@ -79,6 +81,7 @@ class ContrastParams:
     split: bool = True
     factor: int = 0
     lone_k: float = 5.0
+    k_expected: float = 2.5
 
     def __post_init__(self) -> None:
         if self.factor not in (0, 1, 2):
@@ -93,6 +96,8 @@ class ContrastParams:
             raise ValueError(f"memory: got {self.memory}, allowed >= 0 (0 = single-frame)")
         if self.halo < 0:
             raise ValueError(f"halo: got {self.halo}, allowed >= 0")
+        if not (math.isfinite(self.k_expected) and 0 < self.k_expected <= self.k):
+            raise ValueError(f"k_expected: got {self.k_expected}, allowed 0 < k_expected <= k ({self.k})")
         if not (math.isfinite(self.lone_k) and self.lone_k >= 0):
             raise ValueError(f"lone_k: got {self.lone_k}, allowed >= 0 (0 = off)")
         if not self.max_radius > 0:
@@ -600,9 +605,22 @@ def build_contrast(params: ContrastParams) -> Detector:
         base, limit = model.estimate(reflectance)
         return half, reflectance, cv2.multiply(base, light, scale=1 / 255), limit
 
+    def expect(where: Detections | None) -> None:
+        state["expected"] = where
+
     def stage_threshold(value):
         half, reflectance, base, limit = value
-        return reflectance, *threshold_mask(half, base, limit)
+        mask, excess = threshold_mask(half, base, limit)
+        expected = state.get("expected")
+        if expected is not None and len(expected) and params.k_expected < params.k:
+            # around particles the tracker expects, a lower threshold: faint light there is them
+            near = np.zeros_like(mask)
+            f = state["factor"]
+            for (x, y), r in zip((expected.centres / f).tolist(), (expected.radii / f + 1).tolist()):
+                cv2.circle(near, (round(x), round(y)), max(1, round(r)), 255, -1)
+            low = cv2.convertScaleAbs(limit, alpha=params.k_expected / params.k)
+            cv2.bitwise_or(mask, cv2.bitwise_and(cv2.compare(excess, low, cv2.CMP_GT), near), dst=mask)
+        return reflectance, mask, excess
 
     def stage_label(value):
         reflectance, mask, excess = value
@@ -628,7 +646,7 @@ def build_contrast(params: ContrastParams) -> Detector:
         Stage("measure", "Measure Particles", stage_measure),
         Stage("update", "Background Update", stage_update),
     )
-    return Detector("contrast", stages, params, reset=model.reset, set_light=set_light)
+    return Detector("contrast", stages, params, reset=model.reset, set_light=set_light, expect=expect)
 
 
 #: below this share of the lamp's light a pixel's brightness says too little about the scene to learn from
