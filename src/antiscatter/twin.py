@@ -331,7 +331,8 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                     detector.set_light(cv2.warpPerspective(shown, camera_from_far, geometry.camera_size,
                                                            flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                                                            borderValue=1.0))
-                if tracker is not None and run.strategy != "flash":  # where tracked particles should be now
+                if tracker is not None and run.strategy != "flash" and run.mapping != "identity":
+                    # as run (with compensation): where tracked particles should be now
                     detector.expect(tracker.snapshot().holes(t0 + geometry.exposure_s / 2))
                 queue.append(_process(scene.render(light=exposure_light), t0))
                 queue.sort(key=lambda item: item[0])
