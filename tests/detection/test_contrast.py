@@ -242,5 +242,7 @@ def test_a_faint_particle_where_the_tracker_expects_one_is_found():
     found = told.detect(image)
     assert (np.hypot(found.centres[:, 0] - 200, found.centres[:, 1] - 150) < 2).any()
     assert len(found) <= 3  # only near what was expected
+    again = told.detect(image)  # an expectation holds for one frame
+    assert not (np.hypot(again.centres[:, 0] - 200, again.centres[:, 1] - 150) < 3).any()
     with pytest.raises(ValueError, match=r"k_expected: got 5.0, allowed 0 < k_expected <= k \(4.0\)"):
         ContrastParams(k_expected=5.0)

@@ -48,9 +48,9 @@ class Detector:
         exposure -- an (H, W) map in camera pixels, 1 = full lamp (any size; None = full
         everywhere) -- so the pattern's own imprint on the background is not taken for
         particles; detectors that cannot use it ignore it.
-    expect: where known particles should be in the next frame (Detections, camera pixels; None
-        = nowhere): a detector may accept fainter light there -- a tracked particle dimmed
-        under its own hole -- than it would anywhere else.
+    expect: where known particles should be in the next frame (Detections, camera pixels; for
+        that frame only): a detector may accept fainter light there -- a tracked particle
+        dimmed under its own hole -- than it would anywhere else.
     """
 
     name: str
