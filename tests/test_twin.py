@@ -140,3 +140,23 @@ def test_scoreboard_twin_table_has_every_run_at_both_baselines(monkeypatch):
     assert {r["baseline_m"] for r in rows} == {0.0, 0.12} and {r["latency_ms"] for r in rows} == {5.0, 10.0, 20.0}
     assert any(r["run"] == "full light" and r["backscatter_removed"] == 0 for r in rows)
     assert any(r["run"] == "default, range, flash, predict" for r in rows if r["baseline_m"] == 0.12)
+
+
+def test_a_shorter_exposure_gathers_less_light_and_fast_projectors_run(cli, monkeypatch):
+    gathered = {}
+    for exposure, hz in ((0.004, 120.0), (0.001, 960.0)):
+        scene = one_static_particle()
+        real = scene.render
+        seen = []
+        monkeypatch.setattr(scene, "render", lambda labels=None, *, light=None, real=real, seen=seen:
+                            (seen.append(light[0].max()), real(labels, light=light))[1])
+        simulate_loop(TwinRun("contrast", "calibrated", "flash", flash_level=1.0), scene=scene, frames=3,
+                      geometry=TwinGeometry(camera_size=SIZE, baseline_m=0.0, projector_hz=hz, exposure_s=exposure))
+        gathered[exposure] = seen[0]
+    assert gathered[0.001] == pytest.approx(gathered[0.004] / 4)
+    result = cli("twin", "--frames", "3", "--size", "160x120", "--projector-hz", "480", "--flash-level", "1",
+                 "--preset", "bubbles", "--json")
+    assert result.code == 0, result.err
+    assert all(0 <= r["backscatter_removed"] <= 1 for r in json.loads(result.out)["runs"])
+    bad = cli("twin", "--flash-level", "2")
+    assert bad.code == 2 and "--flash-level 2.0: allowed 0..1" in bad.err

@@ -238,6 +238,10 @@ def build_parser() -> argparse.ArgumentParser:
                     "0 = co-located through a beamsplitter)")
     tw.add_argument("--latency-ms", type=float, default=5.0, help="processing latency for all runs (default 5)")
     tw.add_argument("--projector-hz", type=float, default=120.0, help="projector refresh (default 120)")
+    tw.add_argument("--exposure-ms", type=float, help="camera exposure (default 4, or one projector refresh if "
+                    "shorter); the light a frame gathers scales with it")
+    tw.add_argument("--flash-level", type=float, default=0.25, help="brightness of the detection flash in the "
+                    "flash runs, 0..1 (default 0.25; with a fast projector a full 1.0 flash is short)")
     tw.add_argument("--projector-size", default="1280x800", metavar="WxH", help="projector size (default 1280x800)")
     tw.add_argument("--plot", metavar="FILE.png", help="also draw backscatter removed and scene light kept "
                     "against latency and against baseline")
@@ -594,6 +598,7 @@ def _calibrate_board(args: argparse.Namespace, size: tuple[int, int], projector:
 
 
 def _twin(args: argparse.Namespace) -> int:
+    import dataclasses
     import json
 
     from .config import parse_size
@@ -609,11 +614,15 @@ def _twin(args: argparse.Namespace) -> int:
         raise UsageError(f"--latency-ms {args.latency_ms}: allowed >= 0")
     if args.plot:
         check_output_path(args.plot, "--plot")
+    if not 0 <= args.flash_level <= 1:
+        raise UsageError(f"--flash-level {args.flash_level}: allowed 0..1")
     try:
         size = parse_size(args.size, key="--size")
         projector = parse_size(args.projector_size, key="--projector-size")
+        exposure = (args.exposure_ms / 1e3 if args.exposure_ms is not None
+                    else min(0.004, 1.0 / args.projector_hz) if args.projector_hz > 0 else 0.004)
         geometry = TwinGeometry(camera_size=size, projector_size=projector, baseline_m=args.baseline_m,
-                                projector_hz=args.projector_hz)
+                                projector_hz=args.projector_hz, exposure_s=exposure)
     except ValueError as exc:
         raise UsageError(f"twin: {exc}") from None
     calibration = None
@@ -635,6 +644,7 @@ def _twin(args: argparse.Namespace) -> int:
                   "projector px")
     runs = []
     for run in default_runs(args.baseline_m):
+        run = dataclasses.replace(run, flash_level=args.flash_level)
         result = simulate_loop(run, geometry=geometry, preset=args.preset, frames=args.frames, seed=args.seed,
                                latency_ms=args.latency_ms, calibration=calibration)
         result.pop("series")

@@ -68,6 +68,9 @@ class _Probing:
 __all__ = ["TwinGeometry", "TwinRun", "simulate_loop", "default_runs", "STRATEGIES", "MAPPINGS"]
 
 STRATEGIES = ("none", "dim", "flash", "coast")
+#: the exposure the simulator's brightness is set for (seconds); the twin scales the light a
+#: camera frame gathers by exposure / this
+REFERENCE_EXPOSURE_S = 0.004
 MAPPINGS = ("identity", "calibrated", "range", "probe")
 
 
@@ -324,7 +327,9 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
             if j == 0 and detector is not None:
                 # the exposure sits at the start of the frame, inside the first refresh; its pattern
                 # may go on at a later refresh of this same frame
-                exposure_light = (_mean_over_discs(shown, u, v, np.maximum(rp, 0.5)), bg)
+                # the simulator's brightness is that of a 4 ms exposure: a shorter one gathers less
+                gather = geometry.exposure_s / REFERENCE_EXPOSURE_S
+                exposure_light = (gather * _mean_over_discs(shown, u, v, np.maximum(rp, 0.5)), gather * bg)
                 # the system knows the light it put on the scene during this exposure: its
                 # pattern, taken back to camera pixels on a plane at the far working distance
                 if run.mapping != "identity":  # as run: no compensation without a calibration
