@@ -381,13 +381,16 @@ def plot_curves(path: str, *, geometry: TwinGeometry, preset: str = "mixed", fra
                 latencies_ms: tuple[float, ...] = (0.0, 5.0, 10.0, 20.0, 40.0),
                 baselines_m: tuple[float, ...] = (0.0, 0.03, 0.06, 0.12, 0.2)) -> dict[str, Any]:
     """Backscatter removed and scene light kept against latency (at the geometry's baseline) and against
-    baseline (at 5 ms), for the default detector with the calibrated mapping; written as a PNG."""
+    baseline (at 5 ms), for the default detector with the calibrated mapping (and depth probing);
+    written as a PNG."""
     from dataclasses import replace as _replace
 
     from .bench import _pyplot
 
     runs = {"none": TwinRun("contrast", "calibrated"), "coast+predict": TwinRun("contrast", "calibrated", "coast", True),
-            "flash+predict": TwinRun("contrast", "calibrated", "flash", True)}
+            "dim+predict": TwinRun("contrast", "calibrated", "dim", True),
+            "flash+predict": TwinRun("contrast", "calibrated", "flash", True),
+            "probe+predict": TwinRun("contrast", "probe", "dim", True)}
     curves: dict[str, Any] = {"latency_ms": list(latencies_ms), "baseline_m": list(baselines_m), "by_latency": {},
                               "by_baseline": {}}
     for name, run in runs.items():
@@ -400,16 +403,18 @@ def plot_curves(path: str, *, geometry: TwinGeometry, preset: str = "mixed", fra
     for ax, key, xs, label in ((axes[0], "by_latency", latencies_ms, "processing latency (ms)"),
                                (axes[1], "by_baseline", baselines_m, "camera-projector baseline (m)")):
         for name, results in curves[key].items():
-            ax.plot(xs, [r["backscatter_removed"] for r in results], "o-", label=f"{name}: removed")
-            ax.plot(xs, [r["scene_light_kept"] for r in results], "s--", label=f"{name}: kept")
+            line, = ax.plot(xs, [r["backscatter_removed"] for r in results], "o-", label=f"{name}: removed")
+            ax.plot(xs, [r["scene_light_kept"] for r in results], "s--", color=line.get_color(),
+                    label=f"{name}: kept")
         ax.set_xlabel(label)
         ax.set_ylim(0, 1.02)
         ax.grid(alpha=0.3)
     axes[0].set_title(f"against latency (baseline {geometry.baseline_m:g} m)")
     axes[1].set_title("against baseline (latency 5 ms)")
-    axes[1].legend(fontsize=7, loc="lower left")
+    handles, labels = axes[1].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=5, fontsize=7)
     fig.suptitle(f"antiscatter twin: {preset}, {frames} frames, default detector, calibrated mapping")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.1, 1, 1))
     fig.savefig(path, dpi=100)
     plt.close(fig)
     for key in ("by_latency", "by_baseline"):
