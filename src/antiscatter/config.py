@@ -157,10 +157,10 @@ class TrackConfig:
 STRATEGIES = ("none", "dim", "flash", "coast")
 #: what ``auto`` picks on the vehicle (the camera as source), with tracking and prediction on:
 #: dim holes keep darkened particles visible, so tracks and (with a baseline) depth probing go
-#: on.  In the twin (120 Hz projector, 5 ms): co-located, removed 0.57 keeping 0.95 of the scene
-#: light (coasting alone 0.42 / 0.96); at the housing's 12 cm with depth probing 0.42 / 0.85
-#: (coasting 0.07 / 0.95).  A detection flash removes more co-located (0.64) but halves the
-#: scene light (0.61) at 120 Hz.
+#: on.  In the twin (120 Hz projector, 5 ms): co-located, removed 0.57 keeping 0.93 of the scene
+#: light (coasting 0.46 / 0.88); at the housing's 12 cm with depth probing 0.43 / 0.84
+#: (coasting 0.13 / 0.91).  A detection flash removes 0.64 co-located but keeps only 0.61 at
+#: 120 Hz; with a projector at 480 Hz or more a full flash in one refresh does best (0.67 / 0.93).
 HARDWARE_STRATEGY = "dim"
 
 
