@@ -429,6 +429,9 @@ def _evaluate(args: argparse.Namespace) -> int:
             t = extra["tracking"]
             print(f"  tracking: MOTA {t['mota']:.3f}, IDF1 {t['idf1']:.3f}, identity switches "
                   f"{t['id_switches']}, fragmentations {t['fragmentations']}")
+        if "tracking_isolated" in extra:
+            t = extra["tracking_isolated"]
+            print(f"  tracking of the particles that overlap no other: MOTA {t['mota']:.3f}, IDF1 {t['idf1']:.3f}")
         if "prediction" in extra:
             print("  prediction error: " + ", ".join(
                 f"{k} frames {v['mean_px']:.2f} px (p95 {v['p95_px']:.2f})" for k, v in extra["prediction"].items()))

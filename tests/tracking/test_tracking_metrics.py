@@ -71,5 +71,18 @@ def test_evaluate_scenario_with_tracking(cli, tmp_path):
     assert result.code == 0, result.err
     data = json.loads(result.out)
     assert data["tracking"]["idf1"] > 0.8
+    assert data["tracking_isolated"]["idf1"] > 0.8
+    assert data["tracking_isolated"]["tracked_truth"] <= data["tracking"]["tracked_truth"]
     assert data["prediction"]["+1"]["mean_px"] < 1.5
     assert data["prediction"]["+1"]["mean_px"] <= data["prediction"]["+3"]["mean_px"]
+
+
+def test_isolated_particles_are_those_whose_footprints_touch_no_other():
+    from antiscatter.evaluate.tracking import isolated
+
+    centres = np.array([[10.0, 10.0], [16.0, 10.0], [50.0, 50.0], [60.0, 50.0], [90.0, 90.0]])
+    radii = np.array([3.5, 3.0, 4.0, 5.0, 2.0])
+    # 6 px apart with radii 3.5 + 3 overlap; 10 px apart with 4 + 5 do not; the last is alone
+    assert isolated(centres, radii).tolist() == [False, False, True, True, True]
+    assert isolated(centres[:1], radii[:1]).tolist() == [True]
+    assert isolated(np.empty((0, 2)), np.empty(0)).shape == (0,)

@@ -172,6 +172,7 @@ def scoreboard(*, scenarios: dict[str, Any], catalogue_version: int, detectors: 
                "constant-velocity prediction and where its particle is 1 and 3 frames later.", ""]
         rows = _tracking_rows(scenarios, matching, frames_limit, log)
         md += _table(rows, [("scene", "scene", ""), ("mota", "MOTA", "{:.3f}"), ("idf1", "IDF1", "{:.3f}"),
+                            ("idf1_isolated", "IDF1, particles overlapping none", "{:.3f}"),
                             ("id_switches", "ID switches", "{}"), ("fragmentations", "fragmentations", "{}"),
                             ("pred1", "pred. err +1 (px)", "{:.2f}"), ("pred3", "pred. err +3 (px)", "{:.2f}")])
         data["tracking"] = rows
@@ -204,7 +205,8 @@ def _tracking_rows(scenarios: dict[str, Any], matching: Any, frames_limit: int |
         out = evaluate_tracking(scenario_truth_frames(s.preset, s.size, frames, s.seed, matching),
                                 make_detector("contrast"), matching, fps=fps)
         t, p = out["tracking"], out["prediction"]
-        rows.append({"scene": s.name, "mota": t["mota"], "idf1": t["idf1"], "id_switches": t["id_switches"],
+        rows.append({"scene": s.name, "mota": t["mota"], "idf1": t["idf1"],
+                     "idf1_isolated": out["tracking_isolated"]["idf1"], "id_switches": t["id_switches"],
                      "fragmentations": t["fragmentations"], "pred1": p["+1"]["mean_px"],
                      "pred3": p["+3"]["mean_px"]})
     return rows

@@ -165,21 +165,26 @@ def evaluate_pairs(pairs: list[tuple[Path, Path]], detector: Detector, m: Matchi
 def evaluate_tracking(frames_iter, detector: Detector, m: Matching, *, fps: float) -> dict[str, Any]:
     """Run ``detector`` and a :class:`~antiscatter.tracking.Tracker` over (index, image, truth) frames.
 
-    Returns {"tracking": MOTA, IDF1, switches..., "prediction": error at +1, +2, +3 frames}.
+    Returns {"tracking": MOTA, IDF1, switches..., "tracking_isolated": the same over the particles
+    that overlap no other (the others neither to be found nor false alarms), "prediction": error
+    at +1, +2, +3 frames}.
     """
     from ..assignment import gates as _gates, match as _match
     from ..tracking import Tracker
-    from .tracking import PredictionError, TrackingScore
+    from .tracking import PredictionError, TrackingScore, isolated
 
     detector.reset()
     tracker = Tracker()
     score = TrackingScore(min_gate=m.min_gate, gate_scale=m.gate_scale)
+    alone = TrackingScore(min_gate=m.min_gate, gate_scale=m.gate_scale)  # particles that overlap none
     prediction = PredictionError()
     dt = 1.0 / fps
     for index, image, truth in frames_iter:
         found = detector.detect(image)
         tracks = tracker.update(found, index * dt)
         score.add(truth.ids, truth.centres, truth.radii, truth.counted, found.centres, tracks.detection_ids)
+        alone.add(truth.ids, truth.centres, truth.radii, truth.counted & isolated(truth.centres, truth.radii),
+                  found.centres, tracks.detection_ids)
         # predictions of confirmed tracks, attributed to the particle their detection matched
         pairs, _, _ = _match(truth.centres, _gates(truth.radii, min_gate=m.min_gate, scale=m.gate_scale),
                              found.centres)
@@ -192,7 +197,7 @@ def evaluate_tracking(frames_iter, detector: Detector, m: Matching, *, fps: floa
             predictions[int(truth.ids[t])] = [(k, tracks.centres[n] + tracks.velocities[n] * k * dt)
                                               for k in prediction.horizons]
         prediction.add(index, truth.ids, truth.centres, predictions)
-    return {"tracking": score.summary(), "prediction": prediction.summary()}
+    return {"tracking": score.summary(), "tracking_isolated": alone.summary(), "prediction": prediction.summary()}
 
 
 def scenario_truth_frames(preset: str, size: tuple[int, int], frames: int, seed: int, m: Matching):

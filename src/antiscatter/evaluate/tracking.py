@@ -20,7 +20,24 @@ from scipy.optimize import linear_sum_assignment
 
 from ..assignment import gates, match
 
-__all__ = ["TrackingScore", "tracking_summary", "PredictionError"]
+__all__ = ["TrackingScore", "tracking_summary", "PredictionError", "isolated"]
+
+
+def isolated(centres: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """(N,) bool: particles whose footprint touches no other's (centre distance to every other
+    particle above the sum of the two radii), pixels."""
+    n = len(centres)
+    if n < 2:
+        return np.ones(n, bool)
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(centres)
+    reach = float(2 * np.max(radii))
+    alone = np.ones(n, bool)
+    for i, j in tree.query_pairs(reach, output_type="ndarray").tolist():
+        if np.hypot(*(centres[i] - centres[j])) <= radii[i] + radii[j]:
+            alone[i] = alone[j] = False
+    return alone
 
 
 @dataclass
