@@ -1,6 +1,7 @@
 """Gated optimal assignment on hand-made cases with known answers."""
 
 import numpy as np
+import pytest
 
 from antiscatter.assignment import gates, match
 
@@ -52,16 +53,17 @@ def test_gates_rule():
     np.testing.assert_allclose(gates(np.array([3.0]), min_gate=2.0, scale=1.5), [4.5])
 
 
-def test_many_particles_match_exactly_against_a_dense_solution():
+@pytest.mark.parametrize("count, field, gate", [(300, 400, 3.0), (700, 300, 6.0)])
+def test_many_particles_match_exactly_against_a_dense_solution(count, field, gate):
+    # the second case's candidate groups are too many for one dense problem: solved group by group
     from scipy.optimize import linear_sum_assignment
     rng = np.random.default_rng(0)
-    truth = rng.uniform(0, 400, (300, 2))
+    truth = rng.uniform(0, field, (count, 2))
     dets = truth + rng.normal(0, 1.0, truth.shape)
-    dets = np.vstack([dets, rng.uniform(0, 400, (40, 2))])
-    gate = np.full(300, 3.0)
-    m, _, _ = match(truth, gate, dets)
+    dets = np.vstack([dets, rng.uniform(0, field, (40, 2))])
+    m, _, _ = match(truth, np.full(count, gate), dets)
     d = np.hypot(*(truth[:, None, :] - dets[None, :, :]).transpose(2, 0, 1))
-    cost = np.where(d <= 3.0, d, 1e6)
+    cost = np.where(d <= gate, d, 1e6)
     a, b = linear_sum_assignment(cost)
     ok = cost[a, b] < 1e6
     assert len(m) == ok.sum()

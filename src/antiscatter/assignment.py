@@ -60,12 +60,8 @@ def match(truth_centres: np.ndarray, truth_gates: np.ndarray, det_centres: np.nd
         return np.empty((0, 2), np.int64), np.arange(nt), np.arange(nd)
     rows = np.broadcast_to(np.arange(nt)[:, None], ok.shape)[ok]
     cols, dist = cols[ok].astype(np.int64), dist[ok]
-    graph = coo_matrix((np.ones(len(rows)), (rows, nt + cols)), shape=(nt + nd, nt + nd))
-    _, component = connected_components(graph, directed=False)
-    edge_component = component[rows]
-    edges_in = np.bincount(edge_component)
-    # most groups are one candidate pair: matched without a loop
-    single = edges_in[edge_component] == 1
+    # most groups are one candidate pair -- both ends have no other candidate: matched as they are
+    single = (np.bincount(rows, minlength=nt)[rows] == 1) & (np.bincount(cols, minlength=nd)[cols] == 1)
     pair_rows, pair_cols = [rows[single]], [cols[single]]
     multi = np.flatnonzero(~single)
     if len(multi):
@@ -81,6 +77,10 @@ def match(truth_centres: np.ndarray, truth_gates: np.ndarray, det_centres: np.nd
         pair_rows.append(ut[a[feasible]])
         pair_cols.append(ud[b[feasible]])
     elif len(multi):
+        # too many for one dense problem: solve each connected group of candidate pairs on its own
+        graph = coo_matrix((np.ones(len(rows)), (rows, nt + cols)), shape=(nt + nd, nt + nd))
+        _, component = connected_components(graph, directed=False)
+        edge_component = component[rows]
         order = multi[np.argsort(edge_component[multi], kind="stable")]
         bounds = np.flatnonzero(np.diff(edge_component[order])) + 1
         for group in np.split(order, bounds):
