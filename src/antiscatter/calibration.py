@@ -51,10 +51,8 @@ def decode_plane(capture: Callable[[np.ndarray], np.ndarray], projector_size: tu
     Returns ((N, 2) camera pixels, (N, 2) projector pixels) of the pixels that decoded.
     """
     code, patterns, white, black = gray_code_patterns(projector_size)
-    captures = [cv2.cvtColor(c, cv2.COLOR_BGR2GRAY) if c.ndim == 3 else c for c in map(capture, patterns)]
-    lit, dark = capture(white), capture(black)
-    lit = cv2.cvtColor(lit, cv2.COLOR_BGR2GRAY) if lit.ndim == 3 else lit
-    dark = cv2.cvtColor(dark, cv2.COLOR_BGR2GRAY) if dark.ndim == 3 else dark
+    captures = [_grey(c) for c in map(capture, patterns)]
+    lit, dark = _grey(capture(white)), _grey(capture(black))
     code.setWhiteThreshold(white_threshold)
     code.setBlackThreshold(black_threshold)
     height, width = captures[0].shape
@@ -69,6 +67,10 @@ def decode_plane(capture: Callable[[np.ndarray], np.ndarray], projector_size: tu
                 camera.append((x, y))
                 projector.append((pixel[0], pixel[1]))
     return np.array(camera, np.float64).reshape(-1, 2), np.array(projector, np.float64).reshape(-1, 2)
+
+
+def _grey(image: np.ndarray) -> np.ndarray:
+    return image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
 
 
 def fit_homography(camera: np.ndarray, projector: np.ndarray) -> tuple[np.ndarray, float]:
@@ -288,27 +290,24 @@ def decode_dense(captures: list[np.ndarray], lit: np.ndarray, dark: np.ndarray, 
     _, patterns, _, _ = gray_code_patterns(projector_size)
     columns = [k for k in range(0, len(patterns), 2) if patterns[k][0].min() != patterns[k][0].max()]
     rows = [k for k in range(0, len(patterns), 2) if k not in columns]
-    grey = [c.astype(np.int16) if c.ndim == 2 else cv2.cvtColor(c, cv2.COLOR_BGR2GRAY).astype(np.int16)
-            for c in captures]
-    valid = (lit.astype(np.int16) - dark.astype(np.int16)) > black_threshold
+    grey = [_grey(c).astype(np.int16) for c in captures]
+    valid = (_grey(lit).astype(np.int16) - _grey(dark).astype(np.int16)) > black_threshold
 
-    def decode(pairs: list[int], along: np.ndarray) -> np.ndarray:
+    def decode(pairs: list[int], stripes: Callable[[np.ndarray], np.ndarray], count: int) -> np.ndarray:
+        """Projector index (column or row) per camera pixel, -1 where the bit string is no code."""
         code = np.zeros(grey[0].shape, np.int64)
+        keys = np.zeros(count, np.int64)  # each projector index's own bit string
         for bit, k in enumerate(pairs):
             difference = grey[k] - grey[k + 1]
             valid[...] &= np.abs(difference) > white_threshold
             code |= (difference > 0).astype(np.int64) << bit
-        table = np.full(1 << len(pairs), -1, np.int64)  # bit string -> projector index
-        keys = np.zeros(along.shape[0], np.int64)
-        for bit, k in enumerate(pairs):
-            stripe = patterns[k][0, :] if along is cols_axis else patterns[k][:, 0]
-            keys |= (stripe > 127).astype(np.int64) << bit
-        table[keys] = np.arange(along.shape[0])
+            keys |= (stripes(patterns[k]) > 127).astype(np.int64) << bit
+        table = np.full(1 << len(pairs), -1, np.int64)
+        table[keys] = np.arange(count)
         return table[code]
 
-    cols_axis = np.arange(width)
-    column = decode(columns, cols_axis)
-    row = decode(rows, np.arange(height))
+    column = decode(columns, lambda p: p[0, :], width)
+    row = decode(rows, lambda p: p[:, 0], height)
     ok = valid & (column >= 0) & (row >= 0)
     return (np.where(ok, column, np.nan).astype(np.float32), np.where(ok, row, np.nan).astype(np.float32))
 
@@ -329,7 +328,7 @@ class Board:
 
 def board_corners(image: np.ndarray, board: Board) -> np.ndarray | None:
     """The board's inner corners in a camera image (sub-pixel, (N, 2) float32), or None."""
-    grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    grey = _grey(image)
     found, corners = cv2.findChessboardCorners(grey, (board.cols, board.rows),
                                                cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
     if not found:
@@ -404,10 +403,8 @@ def calibrate_board(captures: list[Callable[[np.ndarray], np.ndarray]], *, board
         if corners is None:
             continue
         images = [capture(p) for p in patterns]
-        grey = lambda i: i if i.ndim == 2 else cv2.cvtColor(i, cv2.COLOR_BGR2GRAY)  # noqa: E731
         # the board's black squares return little light: a lower lit-dark threshold than a white target's
-        column, row = decode_dense([grey(i) for i in images], grey(lit), grey(capture(black)), projector_size,
-                                   black_threshold=15)
+        column, row = decode_dense(images, lit, capture(black), projector_size, black_threshold=15)
         projected = projector_corners(corners, column, row, window=window)
         if projected is None:
             continue

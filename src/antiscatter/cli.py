@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 from typing import Any, Sequence
 
@@ -475,7 +476,7 @@ def _bench(args: argparse.Namespace) -> int:
 def _calibrate(args: argparse.Namespace) -> int:
     import math
 
-    from .calibration import HardwareRig, TwinRig, calibrate_planes, mapping_error_px
+    from .calibration import TwinRig, calibrate_planes, mapping_error_px
     from .config import parse_size
     from .twin import TwinGeometry
 
@@ -501,22 +502,13 @@ def _calibrate(args: argparse.Namespace) -> int:
         calibration = calibrate_planes(captures, camera_size=size, projector_size=projector,
                                        camera_focal_px=focal, step=args.step)
     else:
-        from .outputs import open_output
-        from .sources import open_source
-
-        with open_source(args.source, size=size) as source:
-            outputs = [open_output(o) for o in (args.output or ["framebuffer"])]
-            try:
-                rig = HardwareRig(source, outputs)
-                captures = {}
-                for d in depths:
-                    input(f"place the flat target {d:g} m in front of the camera, then press Enter ")
-                    captures[d] = rig.capture  # captured in calibrate_planes, in depth order
-                calibration = calibrate_planes(captures, camera_size=source.size, projector_size=projector,
-                                               camera_focal_px=focal, step=args.step)
-            finally:
-                for o in outputs:
-                    o.close()
+        with _hardware_rig(args, size) as (rig, camera_size):
+            captures = {}
+            for d in depths:
+                input(f"place the flat target {d:g} m in front of the camera, then press Enter ")
+                captures[d] = rig.capture  # captured in calibrate_planes, in depth order
+            calibration = calibrate_planes(captures, camera_size=camera_size, projector_size=projector,
+                                           camera_focal_px=focal, step=args.step)
     calibration.save(args.out)
     print(f"wrote {args.out}: fit error (median, projector px) "
           + ", ".join(f"{d:g} m {e:.2f}" for (d, _), e in zip(calibration.planes, calibration.errors_px))
@@ -527,6 +519,23 @@ def _calibrate(args: argparse.Namespace) -> int:
             print(f"  against the twin's true geometry at {d:.2f} m: mean {error['mean_px']:.2f} px, "
                   f"max {error['max_px']:.2f} px")
     return 0
+
+
+@contextlib.contextmanager
+def _hardware_rig(args: argparse.Namespace, size: tuple[int, int]):
+    """(the vehicle's projector and camera as a calibration rig, the camera's frame size); the
+    outputs and the source are closed however calibration ends."""
+    from .calibration import HardwareRig
+    from .outputs import open_output
+    from .sources import open_source
+
+    with open_source(args.source, size=size) as source:
+        outputs = [open_output(o) for o in (args.output or ["framebuffer"])]
+        try:
+            yield HardwareRig(source, outputs), source.size
+        finally:
+            for o in outputs:
+                o.close()
 
 
 def _parse_board(text: str):
@@ -546,7 +555,7 @@ def _parse_board(text: str):
 
 def _calibrate_board(args: argparse.Namespace, size: tuple[int, int], projector: tuple[int, int]) -> int:
     """``calibrate --board``: the full stereo calibration (twin or hardware)."""
-    from .calibration import BoardRig, HardwareRig, calibrate_board, mapping_error_px, twin_board_poses
+    from .calibration import BoardRig, calibrate_board, mapping_error_px, twin_board_poses
     from .twin import TwinGeometry
 
     board = _parse_board(args.board)
@@ -560,30 +569,20 @@ def _calibrate_board(args: argparse.Namespace, size: tuple[int, int], projector:
         calibration = calibrate_board([rig.capture for rig in rigs], board=board, camera_size=size,
                                       projector_size=projector)
     else:
-        from .outputs import open_output
-        from .sources import open_source
+        with _hardware_rig(args, size) as (rig, camera_size):
+            def posed(k: int):
+                asked = []
 
-        with open_source(args.source, size=size) as source:
-            outputs = [open_output(o) for o in (args.output or ["framebuffer"])]
-            try:
-                rig = HardwareRig(source, outputs)
+                def capture(pattern: np.ndarray) -> np.ndarray:
+                    if not asked:  # calibrate_board starts each pose with its first capture
+                        asked.append(True)
+                        input(f"pose {k + 1} of {args.poses}: hold the board tilted a new way, wholly in view "
+                              "and lit, then press Enter ")
+                    return rig.capture(pattern)
+                return capture
 
-                def posed(k: int):
-                    asked = []
-
-                    def capture(pattern: np.ndarray) -> np.ndarray:
-                        if not asked:  # calibrate_board starts each pose with its first capture
-                            asked.append(True)
-                            input(f"pose {k + 1} of {args.poses}: hold the board tilted a new way, wholly in view "
-                                  "and lit, then press Enter ")
-                        return rig.capture(pattern)
-                    return capture
-
-                calibration = calibrate_board([posed(k) for k in range(args.poses)], board=board,
-                                              camera_size=source.size, projector_size=projector)
-            finally:
-                for o in outputs:
-                    o.close()
+            calibration = calibrate_board([posed(k) for k in range(args.poses)], board=board,
+                                          camera_size=camera_size, projector_size=projector)
     calibration.save(args.out)
     s = calibration.stereo
     print(f"wrote {args.out}: reprojection rms camera {calibration.errors_px[0]:.2f} px, projector "

@@ -7,7 +7,7 @@ import numpy as np
 
 from .detections import Detections
 
-__all__ = ["scale_mapping", "map_to_projector", "render_pattern"]
+__all__ = ["scale_mapping", "map_to_projector", "render_pattern", "blank_pattern"]
 
 _SHIFT = 4  # sub-pixel bits for cv2.circle
 _ONE = 1 << _SHIFT
@@ -47,6 +47,15 @@ def map_to_projector(detections: Detections, mapping: np.ndarray) -> tuple[np.nd
     return np.column_stack([u, v]), detections.radii * scale
 
 
+def blank_pattern(size: tuple[int, int], out: np.ndarray | None = None) -> np.ndarray:
+    """The projector fully lit: ``out`` (or a new (height, width) uint8 image) filled with 255."""
+    width, height = size
+    if out is None:
+        out = np.empty((height, width), np.uint8)
+    out.fill(255)
+    return out
+
+
 def render_pattern(detections: Detections, *, size: tuple[int, int] = (1280, 800),
                    mapping: np.ndarray | None = None, margin: float = 0.0,
                    out: np.ndarray | None = None, hole: int = 0) -> np.ndarray:
@@ -65,10 +74,7 @@ def render_pattern(detections: Detections, *, size: tuple[int, int] = (1280, 800
     -------
     (height, width) uint8 image.
     """
-    width, height = size
-    if out is None:
-        out = np.empty((height, width), np.uint8)
-    out.fill(255)
+    out = blank_pattern(size, out)
     if len(detections) == 0:
         return out
     centres, radii = map_to_projector(detections, np.eye(3) if mapping is None else mapping)

@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 
 from .detections import Detections
-from .pattern import map_to_projector
+from .pattern import blank_pattern, map_to_projector
 
 __all__ = ["DepthProbe"]
 
@@ -121,11 +121,10 @@ class DepthProbe:
         if len(holes) == 0:
             return out
         ids = holes.track_ids
-        lo = np.array([self.tracks[t].lo if t in self.tracks else self.w_far for t in ids.tolist()])
-        hi = np.array([self.tracks[t].hi if t in self.tracks else self.w_near for t in ids.tolist()])
-        span = self.span_px(holes.centres, lo, hi)
-        known = np.array([t in self.tracks and self.tracks[t].lit > 0 for t in ids.tolist()])
-        halve = known & (span > self.settle_px)
+        unknown = _Track(self.w_far, self.w_near)
+        state = np.array([(t.lo, t.hi, t.lit) for t in (self.tracks.get(i, unknown) for i in ids.tolist())])
+        lo, hi, lit = state.T
+        halve = (lit > 0) & (self.span_px(holes.centres, lo, hi) > self.settle_px)
         mid = (lo + hi) / 2
         for tid, a, b, m, h in zip(ids.tolist(), lo.tolist(), hi.tolist(), mid.tolist(), halve.tolist()):
             out[tid] = (a, m) if h else (a, b)
@@ -141,10 +140,7 @@ class DepthProbe:
     def render(self, holes: Detections, probes: dict[int, tuple[float, float]], *, size: tuple[int, int],
                margin: float = 0.0, out: np.ndarray | None = None, hole: int = 0) -> np.ndarray:
         """The pattern: each hole drawn as a thick segment over its probe interval (uint8, 255 = light)."""
-        width, height = size
-        if out is None:
-            out = np.empty((height, width), np.uint8)
-        out.fill(255)
+        out = blank_pattern(size, out)
         if len(holes) == 0:
             return out
         ids = holes.track_ids.tolist()

@@ -349,17 +349,18 @@ class _Pipeline:
         else:
             detections = found
         t_processed = t1 + sum(stage_ns)
-        holes, track_ns, track_ids = detections, 0, None
+        holes, track_ns, track_ids, probes = detections, 0, None, {}
         if self.tracker is not None:
             t_track = clock()
             captured = frame.timestamp_ns / 1e9
             tracks = self.tracker.update(detections, captured, unlit=self.unlit_ids)
             track_ids = tracks.detection_ids
+            prediction = self.tracker.snapshot()
             if tc.predict:
                 latency = tc.latency_ms / 1e3 if tc.latency_ms >= 0 else self.latency_estimate
-                holes = self.tracker.holes(captured + latency)
+                holes = prediction.holes(captured + latency)
             else:
-                holes = self.tracker.holes(captured)
+                holes = prediction.holes(captured)
             if self.last_capture is not None and captured > self.last_capture:
                 period = captured - self.last_capture
                 self.frame_period = period if self.frame_period is None else 0.9 * self.frame_period + 0.1 * period
@@ -368,29 +369,26 @@ class _Pipeline:
                 # the camera sees our holes (and no flash): where the tracked particles should be in
                 # the next frame, faint light is them, dimmed under their holes (open loop this only
                 # adds noise: IDF1 fell by 0.005-0.016 on the scenarios)
-                self.detector.expect(self.tracker.holes(captured + self.frame_period))
+                self.detector.expect(prediction.holes(captured + self.frame_period))
             if self.probe is not None:  # this exposure's verdicts, then the next intervals to try
                 seen = Detections(detections.centres, detections.radii, detections.scores, tracks.detection_ids)
                 self.probe.observe(seen, self.shown_probes,
                                    tracks.ids[tracks.confirmed & (tracks.misses > 0)])
                 self.probe.forget(tracks.ids)
-                holes = (holes, self.probe.probes(holes))
+                probes = self.probe.probes(holes)
             track_ns = clock() - t_track
             t_processed = clock()
-        return _Record(frame, t0, t1, detections, stage_ns, track_ns, track_ids, holes, t_processed, 0)
+        return _Record(frame, t0, t1, detections, stage_ns, track_ns, track_ids, holes, t_processed, 0, probes)
 
     def render(self, rec: _Record) -> _Record:
         """Draw the record's holes into the next pattern buffer."""
         t_start = self.clock()
         buffer = self.buffers[self.next_buffer]
         self.next_buffer = (self.next_buffer + 1) % len(self.buffers)
-        holes = rec.pattern[0] if self.probe is not None else rec.pattern
-        rec.hole_ids = holes.track_ids
+        rec.hole_ids = rec.pattern.track_ids
         if self.probe is not None:
-            holes, probes = rec.pattern
-            rec.pattern = self.probe.render(holes, probes, size=self.projector_size,
+            rec.pattern = self.probe.render(rec.pattern, rec.probes, size=self.projector_size,
                                             margin=self.config.pattern.margin, out=buffer, hole=self.hole_level)
-            rec.probes = probes
         else:
             rec.pattern = render_pattern(rec.pattern, size=self.projector_size, mapping=self.mapping,
                                          margin=self.config.pattern.margin, out=buffer, hole=self.hole_level)

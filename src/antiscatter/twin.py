@@ -175,25 +175,18 @@ def _mean_over_discs(light: np.ndarray, u: np.ndarray, v: np.ndarray, r: np.ndar
     return values.mean(axis=1) if len(values) else np.zeros(0)
 
 
-def _holes_pattern(holes: Detections, geometry: TwinGeometry, run: TwinRun, camera_mapping: np.ndarray,
-                   buffer: np.ndarray, calibration: Any = None) -> np.ndarray:
-    """The projector pattern for ``holes`` (camera pixels) under the run's mapping; float 0..1."""
-    if run.mapping == "range" and geometry.baseline_m > 0 and len(holes):
-        # unknown depth: each hole covers its particle's whole disparity range near..far
-        source = calibration.mapping_at if calibration is not None else geometry.plane_mapping
-        near, far = source(geometry.near_m), source(geometry.far_m)
-        buffer.fill(255)
-        s = near[0, 0]
-        for (x, y), r in zip(holes.centres.tolist(), holes.radii.tolist()):
-            a = (near[0, 0] * x + near[0, 2], near[1, 1] * y + near[1, 2])
-            b = (far[0, 0] * x + far[0, 2], far[1, 1] * y + far[1, 2])
-            thickness = max(1, int(round(2 * (r * s + run.margin_px))))
-            cv2.line(buffer, (round(a[0] * 16), round(a[1] * 16)), (round(b[0] * 16), round(b[1] * 16)), 0,
-                     thickness, cv2.LINE_8, 4)
-        pattern = buffer
+def _holes_pattern(holes: Detections, run: TwinRun, *, size: tuple[int, int], mapping: np.ndarray,
+                   buffer: np.ndarray, segments: DepthProbe | None = None,
+                   probes: dict | None = None) -> np.ndarray:
+    """The projector pattern for ``holes`` (camera pixels) under the run's mapping; float 0..1.
+
+    segments: draw each hole along its particle's epipolar segment -- over ``probes``' interval
+    where given, over the whole near..far range otherwise -- instead of at ``mapping``.
+    """
+    if segments is not None:
+        pattern = segments.render(holes, probes or {}, size=size, margin=run.margin_px, out=buffer)
     else:
-        pattern = render_pattern(holes, size=geometry.projector_size, mapping=camera_mapping,
-                                 margin=run.margin_px, out=buffer)
+        pattern = render_pattern(holes, size=size, mapping=mapping, margin=run.margin_px, out=buffer)
     light = pattern.astype(np.float32) / 255.0
     if run.strategy == "dim":
         np.maximum(light, run.dim_level, out=light)
@@ -216,10 +209,12 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
     if run.strategy == "coast" or run.predict or run.mapping == "probe":
         from .tracking import Tracker
         tracker = Tracker()
-    probe = None
-    if run.mapping == "probe":
-        probe = DepthProbe(calibration.mapping_at if calibration is not None else geometry.plane_mapping,
-                           near_m=geometry.near_m, far_m=geometry.far_m, dim_level=run.dim_level)
+    # holes along epipolar segments: probed intervals, or the whole range when depth is unknown
+    segments = None
+    if run.mapping == "probe" or (run.mapping == "range" and geometry.baseline_m > 0):
+        segments = DepthProbe(calibration.mapping_at if calibration is not None else geometry.plane_mapping,
+                              near_m=geometry.near_m, far_m=geometry.far_m, dim_level=run.dim_level)
+    probe = segments if run.mapping == "probe" else None
     shown_probes: dict = {}  # the intervals the pattern on during the last exposure gave each track
     shown_ids = None  # the tracks whose holes were on during the last exposure
     pw, ph = geometry.projector_size
@@ -242,6 +237,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
     displayed = full  # the lamp is fully on until the first pattern is ready
     queue: list[tuple[float, np.ndarray]] = []  # (time the pattern goes on, pattern)
     buffer = np.empty((ph, pw), np.uint8)
+    drawn = {"size": geometry.projector_size, "mapping": camera_mapping, "buffer": buffer, "segments": segments}
     background_map = geometry.plane_mapping(geometry.background_m)
     inverse_bg = np.linalg.inv(background_map)
     lit_area = cv2.warpPerspective(full, inverse_bg, geometry.camera_size, flags=cv2.INTER_NEAREST,
@@ -267,9 +263,8 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
             if run.predict and run.per_refresh:
                 return on_at, tracker.snapshot()
             holes = tracker.holes(on_at + sub_s / 2 if run.predict else t0 + geometry.exposure_s / 2)
-            return on_at, _Fixed(_holes_pattern(holes, geometry, run, camera_mapping, buffer, calibration),
-                                 holes.track_ids)
-        return on_at, _holes_pattern(found, geometry, run, camera_mapping, buffer, calibration)
+            return on_at, _Fixed(_holes_pattern(holes, run, **drawn), holes.track_ids)
+        return on_at, _holes_pattern(found, run, **drawn)
 
     for k in range(frames):
         if k:
@@ -302,13 +297,10 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
             elif run.strategy == "flash" and j == 0:
                 shown = flash  # the detection flash, timed to the exposure
             elif isinstance(displayed, Prediction):  # holes predicted for this refresh's own time
-                shown = _holes_pattern(displayed.holes(ts + sub_s / 2), geometry, run, camera_mapping, buffer,
-                                       calibration)
+                shown = _holes_pattern(displayed.holes(ts + sub_s / 2), run, **drawn)
             elif isinstance(displayed, _Probing):
                 at = ts + sub_s / 2 if run.predict else displayed.prediction.timestamp
-                pattern = probe.render(displayed.prediction.holes(at), displayed.probes,
-                                       size=geometry.projector_size, margin=run.margin_px, out=buffer)
-                shown = np.maximum(pattern.astype(np.float32) / 255.0, run.dim_level)
+                shown = _holes_pattern(displayed.prediction.holes(at), run, probes=displayed.probes, **drawn)
             elif isinstance(displayed, _Fixed):
                 shown = displayed.light
             else:
