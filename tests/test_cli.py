@@ -279,10 +279,37 @@ def test_strategy_flash_shows_a_uniform_flash_before_every_capture(tmp_path, cli
         assert flash.shape == (800, 1280) and (flash == 128).all()
         pattern = cv2.imread(str(tmp_path / "pat" / f"{i}.png"), cv2.IMREAD_UNCHANGED)
         assert pattern.min() == 0 and pattern.max() == 255
-    with av.open(str(video)) as container:  # the light over time: flash, pattern, flash, pattern...
+    with av.open(str(video)) as container:  # the light over time: flash, last pattern back, new pattern...
         shown = [f.to_ndarray(format="gray") for f in container.decode(video=0)]
-    assert len(shown) == 9  # the source's end is found by the read after the last flash
-    assert all((s == 128).all() for s in shown[0::2]) and all(s.min() == 0 for s in shown[1::2])
+    assert len(shown) == 13  # the source's end is found by the read after the last flash
+    assert all((s == 128).all() for s in shown[0::3])
+    assert (shown[1] == 255).all()  # before the first pattern, the full lamp
+    for i in range(4):
+        assert shown[3 * i + 2].min() == 0
+        if i:  # once the frame is in, the last pattern is back while it is processed
+            assert np.array_equal(shown[3 * i + 1], shown[3 * i - 1])
+
+
+def test_strategy_pulse_lifts_the_last_patterns_holes_only_for_the_capture(tmp_path, cli):
+    video = tmp_path / "light.mkv"
+    result = cli("run", str(_disc_frames(tmp_path)), "--strategy", "pulse", "--dim-level", "0.2",
+                 "--output", f"files:{tmp_path / 'pat'}", "--output", f"files:{video}")
+    assert result.code == 0, result.err
+    patterns = [cv2.imread(str(tmp_path / "pat" / f"{i}.png"), cv2.IMREAD_UNCHANGED) for i in range(4)]
+    pulses = [cv2.imread(str(tmp_path / "pat" / f"flash-{i}.png"), cv2.IMREAD_UNCHANGED) for i in range(4)]
+    assert (pulses[0] == 255).all()  # nothing to lift before the first pattern: the full lamp
+    for i in range(4):
+        # particle (30 + 3i, 40) in a 160x120 frame -> (240 + 24i, 266.7) on the 1280x800 projector
+        assert patterns[i][267, 240 + 24 * i] == 0 and set(np.unique(patterns[i])) == {0, 255}
+        if i:
+            assert np.array_equal(pulses[i], np.maximum(patterns[i - 1], 51))
+            assert pulses[i][267, 240 + 24 * (i - 1)] == 51
+    with av.open(str(video)) as container:  # pulse, last pattern back, new pattern, pulse...
+        shown = [f.to_ndarray(format="gray") for f in container.decode(video=0)]
+    assert len(shown) == 13
+    for i in range(1, 4):
+        assert np.array_equal(shown[3 * i], pulses[i]) and np.array_equal(shown[3 * i + 1], patterns[i - 1])
+        assert np.array_equal(shown[3 * i + 2], patterns[i])
 
 
 def test_strategy_flash_skips_frames_exposed_before_the_flash():
@@ -315,21 +342,24 @@ def test_strategy_coast_tracks_and_flash_needs_single_mode(tmp_path, cli):
                  "--detections", str(tmp_path / "d.csv"))
     assert result.code == 0, result.err
     assert "track_id" in (tmp_path / "d.csv").open().readline()
-    bad = cli("run", "--strategy", "flash", "--mode", "threads", "--frames", "3", "--output", "none")
-    assert bad.code == 2 and "flash needs run.mode single" in bad.err and "Traceback" not in bad.err
+    for strategy in ("flash", "pulse"):
+        bad = cli("run", "--strategy", strategy, "--mode", "threads", "--frames", "3", "--output", "none")
+        assert bad.code == 2 and f"{strategy} needs run.mode single" in bad.err and "Traceback" not in bad.err
     bad = cli("run", "--dim-level", "1.5", "--frames", "3", "--output", "none")
     assert bad.code == 2 and "light.dim_level: got 1.5, allowed a number 0..1" in bad.err
     config = tmp_path / "c.toml"
     config.write_text('[light]\nstrategy = "strobe"\n')
     bad = cli("run", "--config", str(config), "--frames", "3", "--output", "none")
-    assert bad.code == 2 and "light.strategy: got 'strobe', allowed auto, none, dim, flash, coast" in bad.err
+    assert bad.code == 2 and "light.strategy: got 'strobe', allowed auto, none, dim, pulse, flash, coast" in bad.err
 
 
-def test_strategy_auto_dims_and_tracks_on_the_camera_only(tmp_path, cli):
+def test_strategy_auto_pulses_and_tracks_on_the_camera_only(tmp_path, cli):
     from antiscatter.config import load_config
 
     on_vehicle = load_config(overrides={"source": {"spec": "camera"}})
-    assert on_vehicle.light.strategy == "dim" and on_vehicle.track.enabled and on_vehicle.light.depth == "fixed"
+    assert on_vehicle.light.strategy == "pulse" and on_vehicle.track.enabled and on_vehicle.light.depth == "fixed"
+    threaded = load_config(overrides={"source": {"spec": "camera"}, "run": {"mode": "threads"}})
+    assert threaded.light.strategy == "dim"  # pulsing takes turns with the capture: mode single only
     replay = load_config()
     assert replay.light.strategy == "none" and not replay.track.enabled and replay.light.depth == "fixed"
     calibration = tmp_path / "cal.json"
@@ -338,7 +368,8 @@ def test_strategy_auto_dims_and_tracks_on_the_camera_only(tmp_path, cli):
     assert probing.light.depth == "probe"  # a calibration with a baseline: depth probing
 
 
-def test_compensation_tells_the_detector_the_light_of_the_last_pattern(tmp_path, monkeypatch):
+@pytest.mark.parametrize("strategy", ["dim", "pulse"])
+def test_compensation_tells_the_detector_the_light_of_the_last_pattern(tmp_path, monkeypatch, strategy):
     import dataclasses
 
     import antiscatter.runtime as runtime
@@ -354,10 +385,11 @@ def test_compensation_tells_the_detector_the_light_of_the_last_pattern(tmp_path,
     monkeypatch.setattr(runtime, "make_detector", recording)
     frames = _disc_frames(tmp_path)
     config = load_config(overrides={"source": {"spec": str(frames)}, "output": {"outputs": ("none",)},
-                                    "light": {"strategy": "dim", "compensate": True}})
+                                    "light": {"strategy": strategy, "compensate": True}})
     runtime.run(config, log=__import__("io").StringIO(), out=__import__("io").StringIO())
     assert len(seen) == 4 and seen[0].shape == (60, 80)  # half the 160x120 camera frame
-    # the particle at (30, 40) had a dim hole: its place is dark in the light map, the rest lit
+    # the particle at (30, 40) had a dim hole (pulse: dark, lifted for the exposure): its place is
+    # dark in the light map, the rest lit
     assert seen[0][20, 15] == 51 and seen[0][100 // 2 - 10, 150 // 2] == 255
     assert load_config().light.compensate is False  # replays never saw the light
     assert load_config(overrides={"source": {"spec": "camera"}}).light.compensate is False  # no mapping known
@@ -395,7 +427,7 @@ def test_depth_probe_draws_each_unknown_particle_over_its_epipolar_segment(tmp_p
 
 
 def test_the_vehicles_default_configuration_runs_on_a_live_source(tmp_path):
-    """Camera as source, nothing else said: dim holes, tracking with prediction, compensation --
+    """Camera as source, nothing else said: pulsed dim holes, tracking with prediction, compensation --
     and with a board calibration, depth probing -- on a free-running source, end to end."""
     import io
 
@@ -424,10 +456,13 @@ def test_the_vehicles_default_configuration_runs_on_a_live_source(tmp_path):
     for extra in ({}, {"pattern": {"calibration": str(calibration), "mapping": mapping}}):
         config = load_config(overrides={"source": {"spec": "camera"}, "output": {"outputs": (f"files:{tmp_path / 'p'}",)},
                                         "run": {"detections": str(tmp_path / "d.csv")}, **extra})
-        assert config.light.strategy == "dim" and config.track.enabled
+        assert config.light.strategy == "pulse" and config.track.enabled
         assert config.light.depth == ("probe" if extra else "fixed") and config.light.compensate == bool(extra)
         summary = run(config, source=LiveCamera(), log=io.StringIO(), out=io.StringIO())
-        assert summary.frames == 20
+        assert summary.frames == 20 and summary.dropped == 0
+        # each capture under the last pattern with its holes (or segments) lifted to the dim level
+        last, pulse = (cv2.imread(str(tmp_path / "p" / name), cv2.IMREAD_UNCHANGED) for name in ("18.png", "flash-19.png"))
+        assert last.min() == 0 and np.array_equal(pulse, np.maximum(last, 51))
         rows = list(csv.DictReader((tmp_path / "d.csv").open()))
         assert len(rows) >= 30 and all(int(r["track_id"]) > 0 for r in rows)
         assert len({r["track_id"] for r in rows}) <= 6  # two particles, few identities

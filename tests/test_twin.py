@@ -84,6 +84,15 @@ def test_dim_holes_keep_the_particle_found():
         assert f["removed"] == pytest.approx(0.8, abs=1e-6)
 
 
+def test_pulsed_holes_are_dim_only_while_the_camera_exposes():
+    # 120 Hz projector, 60 Hz camera: the hole is lifted to 0.2 in the exposure's refresh and dark
+    # in the other, so the particle gets 0.1 of the full light and stays found
+    out = loop("pulse", dim_level=0.2)
+    for f in out["series"][4:]:
+        assert f["removed"] == pytest.approx(1 - 0.2 / 2, abs=1e-6)
+    assert out["scene_light_kept"] > loop("flash", flash_level=0.2)["scene_light_kept"] + 0.3
+
+
 def test_full_light_run_is_the_reference(cli):
     out = simulate_loop(TwinRun(detector=None), geometry=TwinGeometry(camera_size=SIZE), preset="bubbles", frames=5)
     assert out["backscatter_removed"] == 0 and out["scene_light_kept"] == 1 and not out["calibrated"]
@@ -96,7 +105,7 @@ def test_twin_command_json(cli):
     required = {"detector", "calibrated", "predict", "strategy", "latency_ms", "baseline_m", "backscatter_removed",
                 "scene_light_kept"}
     assert all(required <= set(r) for r in runs)
-    assert {r["strategy"] for r in runs} == {"none", "dim", "flash", "coast"}
+    assert {r["strategy"] for r in runs} == {"none", "dim", "pulse", "flash", "coast"}
     assert any(r["detector"] == "seed" for r in runs) and any(r["detector"] == "default" for r in runs)
     assert all(r["latency_ms"] == 7 and 0 <= r["backscatter_removed"] <= 1 and 0 <= r["scene_light_kept"] <= 1
                for r in runs)
@@ -109,7 +118,8 @@ def test_curves_plot(tmp_path):
     from antiscatter.twin import plot_curves
     curves = plot_curves(str(tmp_path / "t.png"), geometry=TwinGeometry(camera_size=(200, 150)), preset="bubbles",
                          frames=3, latencies_ms=(0.0, 20.0), baselines_m=(0.0, 0.12))
-    assert set(curves["by_latency"]) == {"none", "coast+predict", "dim+predict", "flash+predict", "probe+predict"}
+    assert set(curves["by_latency"]) == {"none", "coast+predict", "dim+predict", "pulse+predict", "flash+predict",
+                                       "probe+pulse+predict"}
     assert all(len(v) == 2 for v in curves["by_baseline"].values())
     assert cv2.imread(str(tmp_path / "t.png")) is not None
 

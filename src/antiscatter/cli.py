@@ -78,17 +78,18 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--latency-ms", type=float, help="with --track: predict over this capture-to-light time "
                    "(default: the measured one)")
     g = run.add_argument_group("light strategy (against the closed-loop catch; see antiscatter twin)")
-    g.add_argument("--strategy", choices=("auto", "none", "dim", "flash", "coast"),
-                   help="auto (default): dim with tracking on with the camera, else none; none: holes from each frame's "
-                        "detections; dim: holes at --dim-level so "
-                        "darkened particles stay visible; flash: a uniform --flash-level frame before each "
+    g.add_argument("--strategy", choices=("auto", "none", "dim", "pulse", "flash", "coast"),
+                   help="auto (default): pulse (dim outside mode single) with tracking on with the camera, else "
+                        "none; none: holes from each frame's detections; dim: holes at --dim-level so "
+                        "darkened particles stay visible; pulse: holes at --dim-level only while the camera "
+                        "exposes, dark otherwise (mode single); flash: a uniform --flash-level frame before each "
                         "capture, the pattern the rest of the time (mode single); coast: tracked holes stay on "
                         "particles that went dark (turns --track on)")
     g.add_argument("--dim-level", type=float, help="light left in dim holes, 0..1 (default 0.2)")
     g.add_argument("--flash-level", type=float, help="brightness of the detection flash, 0..1 (default 0.25)")
     g.add_argument("--depth", choices=("auto", "fixed", "probe"), help="auto (default): probe where it can "
                    "run, else fixed; fixed: holes at the calibration's working distance; probe: each particle's depth found by bisection along its epipolar "
-                   "line under dim holes (needs --strategy dim and --calibration from two distances)")
+                   "line under dim holes (needs --strategy dim or pulse and --calibration from two distances)")
     g = run.add_argument_group("pattern")
     g.add_argument("--projector-size", metavar="WxH", help="projector resolution (default 1280x800)")
     g.add_argument("--margin", type=float, help="pixels added to every hole's radius (default 0)")
@@ -229,7 +230,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "(pinhole camera and projector, baseline, projector refreshes) and report how much light "
                     "the pattern withholds from particles and keeps on the scene, for full light, seed and "
                     "default detectors with identity mapping, and the default detector with the exact "
-                    "geometric (calibrated) mapping under each strategy (none, dim, flash, coast) with and "
+                    "geometric (calibrated) mapping under each strategy (none, dim, pulse, flash, coast) with and "
                     "without prediction.")
     tw.add_argument("--preset", default="mixed", help="simulator preset (default mixed)")
     tw.add_argument("--frames", type=int, default=90, help="camera frames per configuration (default 90)")

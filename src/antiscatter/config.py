@@ -154,14 +154,16 @@ class TrackConfig:
             raise ValueError(f"max_dark: got {self.max_dark}, allowed >= 0 (0 = off)")
 
 
-STRATEGIES = ("none", "dim", "flash", "coast")
+STRATEGIES = ("none", "dim", "pulse", "flash", "coast")
 #: what ``auto`` picks on the vehicle (the camera as source), with tracking and prediction on:
-#: dim holes keep darkened particles visible, so tracks and (with a baseline) depth probing go
-#: on.  In the twin (120 Hz projector, 5 ms): co-located, removed 0.57 keeping 0.93 of the scene
-#: light (coasting 0.46 / 0.88); at the housing's 12 cm with depth probing 0.43 / 0.84
-#: (coasting 0.13 / 0.91).  A detection flash removes 0.64 co-located but keeps only 0.61 at
-#: 120 Hz; with a projector at 480 Hz or more a full flash in one refresh does best (0.67 / 0.93).
-HARDWARE_STRATEGY = "dim"
+#: pulsed dim holes -- lifted to ``dim_level`` only while the camera exposes, dark the rest of
+#: the time -- keep darkened particles visible to the detector, so tracks and (with a baseline)
+#: depth probing go on, at half the light ``dim`` leaves on them.  In the twin (120 Hz
+#: projector, 60 Hz camera, 5 ms; mixed scene): co-located, pulse removes 0.64 keeping 0.92 of
+#: the scene light (dim 0.57 / 0.93, coasting 0.46 / 0.88); a detection flash removes 0.64 but
+#: keeps only 0.61 at 120 Hz.  Pulsing needs mode single (the lamp changes around each
+#: capture); in the other modes ``auto`` picks ``dim``.
+HARDWARE_STRATEGY = "pulse"
 
 
 @dataclass(frozen=True)
@@ -169,11 +171,15 @@ class LightConfig:
     """How the lamp works around the closed-loop catch (a particle dark in its hole is
     lost by the next frame's detector; see ``antiscatter twin``).
 
-    strategy: ``auto`` (default: ``dim`` with tracking on with the camera as source, ``none``
+    strategy: ``auto`` (default: ``pulse`` -- ``dim`` outside mode single -- with tracking on
+        with the camera as source, ``none``
         otherwise -- files and the simulator do not see the light), ``none`` (holes from this frame's detections), ``dim`` (holes at
-        ``dim_level`` of full light, so dimmed particles stay visible), ``flash`` (before
+        ``dim_level`` of full light, so dimmed particles stay visible), ``pulse`` (holes at
+        ``dim_level`` while the camera exposes, dark the rest of the time: before each capture
+        the lamp shows the last pattern with its holes lifted, after it the pattern again; needs
+        mode ``single``), ``flash`` (before
         each capture the lamp shows a uniform ``flash_level`` frame and the camera is read
-        under it; the pattern the rest of the time; needs mode ``single``) or ``coast``
+        under it, then the pattern again; needs mode ``single``) or ``coast``
         (tracked holes stay on particles that went dark; turns tracking on).
     dim_level, flash_level: fractions of full light, 0..1.
     compensate: tell the detector the light each exposure got -- the pattern shown, taken back
@@ -181,10 +187,10 @@ class LightConfig:
         is not taken for particles (mode single); None = on with the camera as source (files and
         the simulator never saw the pattern) and a mapping or calibration is configured (with the
         guessed identity mapping the light map would be wrong).
-    depth: ``auto`` (default: ``probe`` where it can run -- strategy dim, mode single, a
+    depth: ``auto`` (default: ``probe`` where it can run -- strategy dim or pulse, mode single, a
         calibration with a baseline -- else ``fixed``), ``fixed`` (holes where the mapping puts a
         particle at the calibration's working distance) or ``probe`` (each track's depth found by bisection along its epipolar line,
-        judged by the next exposures: needs strategy dim, tracking, mode single and a calibration
+        judged by the next exposures: needs strategy dim or pulse, tracking, mode single and a calibration
         with a baseline, i.e. measured at two distances or more; see antiscatter.probe).
     near_m, far_m: the working distances a particle may be at (probe).
     """
@@ -409,23 +415,24 @@ def load_config(path: str | Path | None = None, overrides: dict[str, dict[str, A
     camera = sections["source"].spec.split(":")[0] == "camera"
     track = sections["track"]
     if light.strategy == "auto":
-        light = dataclasses.replace(light, strategy=HARDWARE_STRATEGY if camera else "none")
+        hardware = HARDWARE_STRATEGY if sections["run"].mode == "single" else "dim"  # pulsing takes turns
+        light = dataclasses.replace(light, strategy=hardware if camera else "none")
         if camera:
             track = dataclasses.replace(track, enabled=True)
     if light.depth == "auto":
-        probe = (light.strategy == "dim" and sections["run"].mode == "single"
+        probe = (light.strategy in ("dim", "pulse") and sections["run"].mode == "single"
                  and _has_baseline(sections["pattern"].calibration))
         light = dataclasses.replace(light, depth="probe" if probe else "fixed")
     if light.compensate is None:  # only with a real mapping: a guessed one would put the light map wrong
         light = dataclasses.replace(light, compensate=camera and bool(sections["pattern"].mapping))
-    if light.strategy == "flash" and sections["run"].mode != "single":
-        raise UsageError(f"light.strategy: flash needs run.mode single (the flash, the capture and the pattern "
-                         f"take turns), got mode {sections['run'].mode}")
+    if light.strategy in ("flash", "pulse") and sections["run"].mode != "single":
+        raise UsageError(f"light.strategy: {light.strategy} needs run.mode single (the exposure's light, the "
+                         f"capture and the pattern take turns), got mode {sections['run'].mode}")
     if light.strategy == "coast" and not track.enabled:
         track = dataclasses.replace(track, enabled=True)  # coasting is what the tracker does
     if light.depth == "probe":
-        if light.strategy != "dim" or sections["run"].mode != "single":
-            raise UsageError(f"light.depth: probe needs light.strategy dim (a probed particle must stay "
+        if light.strategy not in ("dim", "pulse") or sections["run"].mode != "single":
+            raise UsageError(f"light.depth: probe needs light.strategy dim or pulse (a probed particle must stay "
                              f"visible) and run.mode single; got strategy {light.strategy}, mode "
                              f"{sections['run'].mode}")
         if not _has_baseline(sections["pattern"].calibration):

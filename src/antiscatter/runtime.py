@@ -315,6 +315,12 @@ class _Pipeline:
         self.hole_level = round(light.dim_level * 255) if light.strategy == "dim" else 0
         self.flash_image = (np.full((height, width), round(light.flash_level * 255), np.uint8)
                             if light.strategy == "flash" else None)
+        # pulse: while the camera exposes, the last pattern with its holes lifted to dim_level
+        self.pulse_level = round(light.dim_level * 255) if light.strategy == "pulse" else None
+        self.exposing = self.flash_image is not None or self.pulse_level is not None
+        self.full_image = np.full((height, width), 255, np.uint8)
+        self.last_pattern: np.ndarray | None = None  # the pattern the lamp shows between exposures
+        self.pulse_image: np.ndarray | None = None  # the last pattern, lifted (pulse)
         # the light the next exposure gets, in camera pixels at half size (the detector's working scale)
         self.compensate = bool(light.compensate) and light.strategy != "flash" and config.run.mode == "single"
         cw, ch = source.size
@@ -397,13 +403,25 @@ class _Pipeline:
         return rec
 
     def flash(self) -> int:
-        """Show the uniform detection flash on every output; the time it went on (monotonic ns)."""
-        image = self.flash_image
+        """Show the next exposure's light on every output -- the uniform detection flash, or the
+        last pattern with its holes lifted (pulse); the time it went on (monotonic ns)."""
+        if self.flash_image is not None:
+            image = self.flash_image
+        else:
+            image = self.pulse_image if self.pulse_image is not None else self.full_image
         if not self.light_on:
             image = np.zeros_like(image)
         for output in self.outputs:
             output.flash(image)
         return time.monotonic_ns()
+
+    def restore(self) -> None:
+        """The exposure is over: the last pattern back on every output while the frame is processed."""
+        image = self.last_pattern if self.last_pattern is not None else self.full_image
+        if not self.light_on:
+            image = np.zeros_like(image)
+        for output in self.outputs:
+            output.restore(image)
 
     def emit(self, rec: _Record, dropped: int) -> bool:
         """Show the pattern, log the frame; True when an output asked to stop."""
@@ -421,9 +439,17 @@ class _Pipeline:
             self.shown_probes = rec.probes if self.light_on else {}
         # single mode: the next exposure is taken under this pattern (not under a flash)
         self.unlit_ids = rec.hole_ids if self.light_on and self.flash_image is None else None
+        exposed = shown
+        if self.exposing:
+            # the pattern outlives its buffer (the ring reuses it): keep a copy to restore after captures
+            if self.last_pattern is None or self.last_pattern.shape != shown.shape:
+                self.last_pattern = np.empty_like(shown)
+            np.copyto(self.last_pattern, shown)
+            if self.pulse_level is not None:
+                self.pulse_image = exposed = np.maximum(shown, np.uint8(self.pulse_level), out=self.pulse_image)
         if self.compensate:  # what the next exposure will be lit by: this pattern on the scene
             self.detector.set_light(None if not self.light_on else cv2.warpPerspective(
-                shown, self.camera_from_projector, self.light_size, flags=cv2.INTER_LINEAR,
+                exposed, self.camera_from_projector, self.light_size, flags=cv2.INTER_LINEAR,
                 borderMode=cv2.BORDER_CONSTANT, borderValue=255))
         self._record(rec.frame.image)
         shown_ns = time.monotonic_ns()
@@ -632,13 +658,15 @@ MAX_STALE_FRAMES = 3
 def _run_single(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: Any) -> None:
     """One thread: pace, capture, process, show -- the report's design.
 
-    With the ``flash`` strategy each turn starts with the detection flash; a live
-    source's frames exposed before it went on (the camera free-runs) are skipped
-    and counted as dropped, so the detector sees particles under uniform light.
+    With the ``flash`` and ``pulse`` strategies each turn starts with the exposure's
+    light (the detection flash, or the last pattern with its holes lifted); a live
+    source's frames exposed before it went on (the camera free-runs) are skipped and
+    counted as dropped, so the detector sees particles under that light; once the
+    frame is in, the last pattern goes back on while it is processed.
     """
     summary = pipeline.summary
     pacer = Pacer(rc.fps)
-    flashing = pipeline.flash_image is not None
+    flashing = pipeline.exposing
     live = getattr(source, "live", False)
     while True:
         if _finished(summary, stop, rc):
@@ -654,6 +682,8 @@ def _run_single(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: 
         if frame is None:
             summary.stop_reason = "source ended"
             return
+        if flashing:
+            pipeline.restore()
         if pipeline.emit(pipeline.process(frame, t0, t1), stale):
             summary.stop_reason = "stopped from the window (e)"
             return

@@ -22,6 +22,9 @@ is lost, its hole closes, it is lit again):
 
 * ``none``: the naive loop;
 * ``dim``: holes at ``dim_level`` of full light, so darkened particles stay visible;
+* ``pulse``: holes at ``dim_level`` in the refresh the camera exposes in, dark in the
+  others -- the detector still sees darkened particles, which get half the light ``dim``
+  leaves them (at 120 Hz with a 60 Hz camera);
 * ``flash``: every camera exposure sits in a uniform flash sub-frame of
   ``flash_level``; the pattern is shown in the other sub-frames;
 * ``coast``: holes follow tracked particles on their predicted path while dark.
@@ -67,7 +70,7 @@ class _Probing:
 
 __all__ = ["TwinGeometry", "TwinRun", "simulate_loop", "default_runs", "STRATEGIES", "MAPPINGS"]
 
-STRATEGIES = ("none", "dim", "flash", "coast")
+STRATEGIES = ("none", "dim", "pulse", "flash", "coast")
 #: the exposure the simulator's brightness is set for (seconds); the twin scales the light a
 #: camera frame gathers by exposure / this
 REFERENCE_EXPOSURE_S = 0.004
@@ -154,8 +157,8 @@ class TwinRun:
             raise ValueError(f"strategy: got {self.strategy!r}, allowed {', '.join(STRATEGIES)}")
         if self.mapping not in MAPPINGS:
             raise ValueError(f"mapping: got {self.mapping!r}, allowed {', '.join(MAPPINGS)}")
-        if self.mapping == "probe" and self.strategy != "dim":
-            raise ValueError("mapping: probe needs strategy dim (a probed particle must stay visible)")
+        if self.mapping == "probe" and self.strategy not in ("dim", "pulse"):
+            raise ValueError("mapping: probe needs strategy dim or pulse (a probed particle must stay visible)")
 
 
 #: 32 points spread evenly over the unit disc (a sunflower spiral): a disc's mean light is their mean
@@ -305,6 +308,8 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                 shown = displayed.light
             else:
                 shown = displayed
+            if run.strategy == "pulse" and j == 0 and detector is not None:
+                shown = np.maximum(shown, run.dim_level)  # holes dimmed only while the camera exposes
             # the scene's state is the frame's mid-exposure; particles keep moving through the
             # frame period, so each refresh lights them where they are in its middle
             q = scene.particles(ahead_s=j * sub_s + sub_s / 2 - geometry.exposure_s / 2)
@@ -358,14 +363,15 @@ def default_runs(baseline_m: float) -> list[TwinRun]:
     mapping under each strategy, with and without prediction."""
     runs = [TwinRun(detector=None), TwinRun("seed", "identity"), TwinRun("contrast", "identity"),
             TwinRun("contrast", "calibrated")]
-    runs += [TwinRun("contrast", "calibrated", strategy) for strategy in ("dim", "flash", "coast")]
+    runs += [TwinRun("contrast", "calibrated", strategy) for strategy in ("dim", "pulse", "flash", "coast")]
     runs += [TwinRun("contrast", "calibrated", "coast", predict=True),
              TwinRun("contrast", "calibrated", "dim", predict=True),
+             TwinRun("contrast", "calibrated", "pulse", predict=True),
              TwinRun("contrast", "calibrated", "flash", predict=True)]
     if baseline_m > 0:
         runs.append(TwinRun("contrast", "range", "flash", predict=True))
-        runs.append(TwinRun("contrast", "probe", "dim"))
-        runs.append(TwinRun("contrast", "probe", "dim", predict=True))
+        runs += [TwinRun("contrast", "probe", strategy, predict=predict)
+                 for strategy in ("dim", "pulse") for predict in (False, True)]
     return runs
 
 
@@ -381,8 +387,9 @@ def plot_curves(path: str, *, geometry: TwinGeometry, preset: str = "mixed", fra
 
     runs = {"none": TwinRun("contrast", "calibrated"), "coast+predict": TwinRun("contrast", "calibrated", "coast", True),
             "dim+predict": TwinRun("contrast", "calibrated", "dim", True),
+            "pulse+predict": TwinRun("contrast", "calibrated", "pulse", True),
             "flash+predict": TwinRun("contrast", "calibrated", "flash", True),
-            "probe+predict": TwinRun("contrast", "probe", "dim", True)}
+            "probe+pulse+predict": TwinRun("contrast", "probe", "pulse", True)}
     curves: dict[str, Any] = {"latency_ms": list(latencies_ms), "baseline_m": list(baselines_m), "by_latency": {},
                               "by_baseline": {}}
     for name, run in runs.items():
@@ -404,7 +411,7 @@ def plot_curves(path: str, *, geometry: TwinGeometry, preset: str = "mixed", fra
     axes[0].set_title(f"against latency (baseline {geometry.baseline_m:g} m)")
     axes[1].set_title("against baseline (latency 5 ms)")
     handles, labels = axes[1].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=5, fontsize=7)
+    fig.legend(handles, labels, loc="lower center", ncol=6, fontsize=7)
     fig.suptitle(f"antiscatter twin: {preset}, {frames} frames, default detector, calibrated mapping")
     fig.tight_layout(rect=(0, 0.1, 1, 1))
     fig.savefig(path, dpi=100)

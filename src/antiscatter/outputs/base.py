@@ -14,8 +14,9 @@ class LightOutput:
     """Base of every light output.
 
     ``show(pattern, frame, detections)`` hands one projector pattern ((H, W)
-    uint8, 255 = light) to the output; ``flash(image)`` the detection flash
-    shown before a capture; ``exit_requested`` turns true when the
+    uint8, 255 = light) to the output; ``flash(image)`` the light shown for a
+    capture (detection flash or pulse) and ``restore(pattern)`` the pattern
+    put back after it; ``exit_requested`` turns true when the
     user asked to stop from the output (``e`` in a window); ``close()`` leaves
     files complete and devices released.  Outputs are context managers.
     """
@@ -28,8 +29,13 @@ class LightOutput:
         raise NotImplementedError
 
     def flash(self, image: np.ndarray) -> None:
-        """Show the uniform detection flash (``light.strategy = "flash"``); by default like a pattern."""
+        """Show the light for the next exposure: the uniform detection flash (``light.strategy =
+        "flash"``) or the last pattern with its holes lifted (``"pulse"``); by default like a pattern."""
         self.show(image)
+
+    def restore(self, pattern: np.ndarray) -> None:
+        """The exposure is over: show the last pattern again; by default like a pattern."""
+        self.show(pattern)
 
     def close(self) -> None:
         pass

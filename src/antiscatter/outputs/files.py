@@ -40,8 +40,11 @@ class PngFolderOutput(LightOutput):
         self._write(self.folder / f"{index}.png", pattern)
 
     def flash(self, image: np.ndarray) -> None:
-        """The flash before frame N's capture goes to ``flash-N.png``."""
+        """The light before frame N's capture (flash or pulse) goes to ``flash-N.png``."""
         self._write(self.folder / f"flash-{self._count}.png", image)
+
+    def restore(self, pattern: np.ndarray) -> None:
+        """The pattern put back after a capture is the last N.png already written: nothing new."""
 
     @staticmethod
     def _write(path: Path, image: np.ndarray) -> None:
