@@ -86,6 +86,17 @@ def test_unconfirmed_particles_get_holes_where_seen():
     assert holes.radii[0] == pytest.approx(3.0)
 
 
+def test_a_particle_seen_twice_moves_its_hole_before_it_is_confirmed():
+    tracker = Tracker(confirm_hits=3)
+    tracker.update(Detections([[50, 50]], [3.0]), 0.0)
+    tracks = tracker.update(Detections([[60, 50]], [3.0]), DT)  # 600 px/s to the right
+    assert not tracks.confirmed[0]
+    holes = tracker.holes(2 * DT)
+    # two sightings give the velocity: the hole is where the particle will be, not where it was seen
+    assert holes.centres[0, 0] == pytest.approx(70, abs=1.5) and holes.centres[0, 1] == pytest.approx(50)
+    assert holes.radii[0] > 3.0  # grown by the uncertainty of a two-point velocity
+
+
 def test_empty_frames():
     tracker = Tracker()
     tracks = tracker.update(Detections.empty(), 0.0)
