@@ -158,11 +158,12 @@ STRATEGIES = ("none", "dim", "pulse", "flash", "coast")
 #: what ``auto`` picks on the vehicle (the camera as source), with tracking and prediction on:
 #: pulsed dim holes -- lifted to ``dim_level`` only while the camera exposes, dark the rest of
 #: the time -- keep darkened particles visible to the detector, so tracks and (with a baseline)
-#: depth probing go on, at half the light ``dim`` leaves on them.  In the twin (120 Hz
-#: projector, 60 Hz camera, 5 ms; mixed scene): co-located, pulse removes 0.64 keeping 0.92 of
-#: the scene light (dim 0.57 / 0.93, coasting 0.46 / 0.88); a detection flash removes 0.64 but
-#: keeps only 0.61 at 120 Hz.  Pulsing needs mode single (the lamp changes around each
-#: capture); in the other modes ``auto`` picks ``dim``.
+#: depth probing go on, at a fraction of the light ``dim`` leaves on them.  In the twin (120 Hz
+#: projector, 60 Hz camera, 5 ms; mixed scene): co-located, pulse removes 0.67 keeping 0.92 of
+#: the scene light (dim 0.60 / 0.93, coasting 0.46 / 0.87); a detection flash removes 0.65 but
+#: keeps only 0.61 at 120 Hz; at 480 Hz pulsing still wins (0.71 / 0.94, a full flash 0.69 /
+#: 0.93).  Pulsing needs mode single (the lamp changes around each capture); in the other
+#: modes ``auto`` picks ``dim``.
 HARDWARE_STRATEGY = "pulse"
 
 
