@@ -82,6 +82,10 @@ def test_dim_holes_keep_the_particle_found():
     out = loop("dim", dim_level=0.2)
     for f in out["series"][4:]:
         assert f["removed"] == pytest.approx(0.8, abs=1e-6)
+    # the steady figures leave the start-up out (here the last 12 of 24 frames): exactly the dim level's
+    assert out["steady_from_frame"] == 12 and out["backscatter_removed_steady"] == pytest.approx(0.8, abs=1e-6)
+    assert out["backscatter_removed"] < 0.8 - 0.02  # the first frames, under the full lamp, count in the run's
+    assert out["scene_light_kept_steady"] == pytest.approx(np.mean([f["kept"] for f in out["series"][12:]]))
 
 
 def test_pulsed_holes_are_dim_only_while_the_camera_exposes():
@@ -103,7 +107,7 @@ def test_twin_command_json(cli):
     assert result.code == 0, result.err
     runs = json.loads(result.out)["runs"]
     required = {"detector", "calibrated", "predict", "strategy", "latency_ms", "baseline_m", "backscatter_removed",
-                "scene_light_kept"}
+                "scene_light_kept", "backscatter_removed_steady", "scene_light_kept_steady", "steady_from_frame"}
     assert all(required <= set(r) for r in runs)
     assert {r["strategy"] for r in runs} == {"none", "dim", "pulse", "flash", "coast"}
     assert any(r["detector"] == "seed" for r in runs) and any(r["detector"] == "default" for r in runs)

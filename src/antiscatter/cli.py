@@ -655,7 +655,8 @@ def _twin(args: argparse.Namespace) -> int:
         if not args.json:
             print(f"{result['detector'] or 'full light':<10} {result['mapping']:<11} {result['strategy']:<6} "
                   f"predict {str(result['predict']).lower():<5}  removed {result['backscatter_removed']:.3f}  "
-                  f"kept {result['scene_light_kept']:.3f}")
+                  f"kept {result['scene_light_kept']:.3f}  (from frame {result['steady_from_frame']}: "
+                  f"{result['backscatter_removed_steady']:.3f} / {result['scene_light_kept_steady']:.3f})")
     if args.plot:
         from .twin import plot_curves
 

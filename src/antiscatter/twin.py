@@ -15,7 +15,9 @@ Figures, integrated over every sub-frame (flashes included):
 
 * backscatter removed = 1 - (light on particles with the system / under full light),
   each particle weighted by the light it would send back under the full lamp;
-* scene light kept = light on the background with the system / under full light.
+* scene light kept = light on the background with the system / under full light;
+* both again over the frames after the start-up (``_steady``: from frame
+  ``SETTLE_FRAMES``, at most half the run), what a long dive sees.
 
 Strategies against the closed-loop catch (a particle in its hole goes dark,
 is lost, its hole closes, it is lit again):
@@ -71,6 +73,9 @@ class _Probing:
 __all__ = ["TwinGeometry", "TwinRun", "simulate_loop", "default_runs", "STRATEGIES", "MAPPINGS"]
 
 STRATEGIES = ("none", "dim", "pulse", "flash", "coast")
+#: frames the system needs to start up (the detector's 16-frame background warm-up, the first
+#: tracks' confirmation); the ``_steady`` figures leave them out (at most half a run)
+SETTLE_FRAMES = 20
 #: the exposure the simulator's brightness is set for (seconds); the twin scales the light a
 #: camera frame gathers by exposure / this
 REFERENCE_EXPOSURE_S = 0.004
@@ -345,17 +350,24 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
         off_particles += float((weight * frame_full).sum())
         on_scene += frame_scene
         scene_samples += 1
-        total = float((weight * frame_full).sum())
-        series.append({"frame": k, "removed": 1 - float((weight * frame_on).sum()) / total if total else float("nan"),
-                       "kept": frame_scene})
+        total, lit = float((weight * frame_full).sum()), float((weight * frame_on).sum())
+        series.append({"frame": k, "removed": 1 - lit / total if total else float("nan"), "kept": frame_scene,
+                       "particle_light": lit, "particle_light_full": total})
     removed = 1.0 - on_particles / off_particles if off_particles else 0.0
+    # after the start-up: the detector's background warm-up and the first tracks' confirmation
+    settle = min(SETTLE_FRAMES, frames // 2)
+    steady = series[settle:]
+    steady_full = sum(f["particle_light_full"] for f in steady)
+    removed_steady = 1.0 - sum(f["particle_light"] for f in steady) / steady_full if steady_full else 0.0
+    kept_steady = float(np.mean([f["kept"] for f in steady])) if steady else 1.0
     return {"detector": "default" if run.detector == "contrast" else run.detector,
             "calibrated": run.detector is not None and run.mapping != "identity",
             "mapping": run.mapping if run.detector else "none", "predict": run.predict,
             "strategy": run.strategy if run.detector else "none", "latency_ms": latency_ms,
             "baseline_m": geometry.baseline_m, "backscatter_removed": removed,
             "scene_light_kept": on_scene / scene_samples if scene_samples else 1.0, "frames": frames,
-            "series": series}
+            "steady_from_frame": settle, "backscatter_removed_steady": removed_steady,
+            "scene_light_kept_steady": kept_steady, "series": series}
 
 
 def default_runs(baseline_m: float) -> list[TwinRun]:

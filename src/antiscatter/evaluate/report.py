@@ -177,17 +177,23 @@ def scoreboard(*, scenarios: dict[str, Any], catalogue_version: int, detectors: 
                             ("pred1", "pred. err +1 (px)", "{:.2f}"), ("pred3", "pred. err +3 (px)", "{:.2f}")])
         data["tracking"] = rows
     if twin_frames:
+        from ..twin import SETTLE_FRAMES
+
         md += ["", "## Closed loop (`antiscatter twin`)", "",
                f"Preset mixed, 800x600 camera at 60 Hz (4 ms exposure), 1280x800 projector at 120 Hz, "
                f"{twin_frames} frames per run. Removed = backscatter withheld from particles, kept = scene "
-               "light left on (1 = full lamp). Holes drawn with the twin's exact geometry at the working "
+               "light left on (1 = full lamp), over the whole run and, \"steady\", from frame "
+               f"{min(SETTLE_FRAMES, twin_frames // 2)} on (after the detector's warm-up and the first "
+               "tracks' confirmation). Holes drawn with the twin's exact geometry at the working "
                "depth (\"calibrated\"), stretched over each particle's disparity range (\"range\"), or "
-               "at each track's depth found by bisection under dim holes (\"probe\"). With a mapping other "
+               "at each track's depth found by bisection under dim or pulsed holes (\"probe\"). With a mapping other "
                "than identity the detector is told the light its exposure got (compensation).", ""]
         rows = _twin_rows(twin_frames, log)
         md += _table(rows, [("baseline_m", "baseline (m)", "{:g}"), ("latency_ms", "latency (ms)", "{:g}"),
                             ("run", "system", ""), ("backscatter_removed", "removed", "{:.3f}"),
-                            ("scene_light_kept", "kept", "{:.3f}")])
+                            ("scene_light_kept", "kept", "{:.3f}"),
+                            ("backscatter_removed_steady", "removed, steady", "{:.3f}"),
+                            ("scene_light_kept_steady", "kept, steady", "{:.3f}")])
         data["twin"] = rows
     return "\n".join(md) + "\n", data
 
@@ -227,5 +233,7 @@ def _twin_rows(frames: int, log: Callable[[str], None]) -> list[dict[str, Any]]:
                         + (", predict" if out["predict"] else ""))
                 rows.append({"baseline_m": baseline, "latency_ms": latency, "run": name,
                              "backscatter_removed": out["backscatter_removed"],
-                             "scene_light_kept": out["scene_light_kept"]})
+                             "scene_light_kept": out["scene_light_kept"],
+                             "backscatter_removed_steady": out["backscatter_removed_steady"],
+                             "scene_light_kept_steady": out["scene_light_kept_steady"]})
     return rows
