@@ -58,7 +58,30 @@ def test_the_segment_spans_the_disparity_between_near_and_far():
     assert forgotten.tracks == {}
 
 
+def test_a_probed_hole_withholds_light_over_its_interval_and_no_further():
+    p = probe()
+    centre = np.array([[400.0, 300.0]])
+    hole = Detections(centre, [3.0], track_ids=[5])
+    lo, hi = p.w_far, (p.w_far + p.w_near) / 2  # the far half of the segment
+    pattern = p.render(hole, {5: (lo, hi)}, size=GEOMETRY.projector_size, margin=2.0)
+    a = GEOMETRY.plane_mapping(1 / lo) @ [400.0, 300.0, 1.0]
+    b = GEOMETRY.plane_mapping(1 / hi) @ [400.0, 300.0, 1.0]
+    a, b = a[:2] / a[2], b[:2] / b[2]
+    direction = (b - a) / np.linalg.norm(b - a)
+    ys, xs = np.nonzero(pattern == 0)
+    along = (np.column_stack([xs, ys]) - a) @ direction  # 0 at the interval's far end, |b - a| at the other
+    length = np.linalg.norm(b - a)
+    # caps included, the dark pixels span the interval: none more than a pixel past either end
+    assert along.min() >= -1.5 and along.max() <= length + 1.5
+    assert along.min() <= 1.5 and along.max() >= length - 1.5
+    # without an interval (depth unknown) the whole segment is drawn, caps and all
+    whole = p.render(hole, {}, size=GEOMETRY.projector_size, margin=2.0)
+    far = GEOMETRY.plane_mapping(3.0) @ [400.0, 300.0, 1.0]
+    ys, xs = np.nonzero(whole == 0)
+    assert ((np.column_stack([xs, ys]) - far[:2] / far[2]) @ direction).min() < -3
+
+
 def test_probe_runs_need_dim_holes():
-    with pytest.raises(ValueError, match="probe needs strategy dim"):
+    with pytest.raises(ValueError, match="probe needs strategy dim or pulse"):
         TwinRun("contrast", "probe", "flash", predict=True)
     TwinRun("contrast", "probe", "dim", predict=False)  # holes where the particles were seen

@@ -139,7 +139,16 @@ class DepthProbe:
     # ---------------------------------------------------------------- rendering
     def render(self, holes: Detections, probes: dict[int, tuple[float, float]], *, size: tuple[int, int],
                margin: float = 0.0, out: np.ndarray | None = None, hole: int = 0) -> np.ndarray:
-        """The pattern: each hole drawn as a thick segment over its probe interval (uint8, 255 = light)."""
+        """The pattern: each hole drawn as a thick segment over its probe interval (uint8, 255 = light).
+
+        A thick line's round caps reach half its thickness past its ends; a probed hole's
+        segment is drawn that much shorter at each end (down to a disc at its middle), so the
+        light it withholds -- caps included -- spans its interval and no more.  Otherwise a
+        particle just past the interval's end is dimmed by the cap, judged under the probe, and
+        every such verdict pushes the bisection the same way: in the twin the settled depths sat
+        a median 8 projector px too far, beside their particles.  Holes without a probe
+        interval (the whole near..far range) are drawn in full, caps and all.
+        """
         out = blank_pattern(size, out)
         if len(holes) == 0:
             return out
@@ -152,6 +161,12 @@ class DepthProbe:
         b = far + _t(hi, self)[:, None] * (near - far)
         _, radii = map_to_projector(holes, self._h_far)
         thickness = np.maximum(1, np.rint(2 * (radii + margin))).astype(int)
+        probed = np.array([t in probes for t in ids], bool)
+        if probed.any():
+            length = np.hypot(*(b - a).T)
+            inset = np.where(probed, np.minimum(thickness / 2.0, length / 2.0), 0.0)
+            step = (b - a) * (inset / np.maximum(length, 1e-9))[:, None]
+            a, b = a + step, b - step
         for (ax, ay), (bx, by), t in zip((a * 16).round().astype(np.int64).tolist(),
                                          (b * 16).round().astype(np.int64).tolist(), thickness.tolist()):
             cv2.line(out, (ax, ay), (bx, by), hole, t, cv2.LINE_8, 4)
