@@ -426,6 +426,33 @@ def test_depth_probe_draws_each_unknown_particle_over_its_epipolar_segment(tmp_p
     assert bad.code == 2 and "probe needs light.strategy dim" in bad.err
 
 
+def test_depth_probe_with_pulse_keeps_the_whole_interval_dark_and_probes_half_for_the_capture(tmp_path, cli):
+    from antiscatter.calibration import load_calibration
+
+    calibration = tmp_path / "cal.json"
+    assert cli("calibrate", str(calibration), "--twin", "--size", "160x120").code == 0
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(frames / f"{i}.png"), draw_discs((160, 120), [(100.0, 60.0, 3.0)]))
+    result = cli("run", str(frames), "--strategy", "pulse", "--depth", "probe", "--calibration", str(calibration),
+                 "--output", f"files:{tmp_path / 'pat'}")
+    assert result.code == 0, result.err
+    cal = load_calibration(calibration)
+    pattern = cv2.imread(str(tmp_path / "pat" / "0.png"), cv2.IMREAD_UNCHANGED)
+    pulse = cv2.imread(str(tmp_path / "pat" / "flash-1.png"), cv2.IMREAD_UNCHANGED)
+
+    def at(image, depth):
+        u, v, w = cal.mapping_at(depth) @ [100.0, 60.0, 1.0]
+        return image[int(round(v / w)), int(round(u / w))]
+
+    # between exposures the whole segment the particle may be on is dark; for the next capture
+    # only the probe's far half is lifted to the dim level, the near part lit
+    assert [at(pattern, d) for d in (3.0, 1.0, 0.6, 0.35)] == [0, 0, 0, 0]
+    assert [at(pulse, d) for d in (3.0, 1.0, 0.6, 0.3)] == [51, 51, 51, 255]
+    assert set(np.unique(pattern)) == {0, 255} and set(np.unique(pulse)) == {51, 255}
+
+
 def test_the_vehicles_default_configuration_runs_on_a_live_source(tmp_path):
     """Camera as source, nothing else said: pulsed dim holes, tracking with prediction, compensation --
     and with a board calibration, depth probing -- on a free-running source, end to end."""
@@ -460,9 +487,16 @@ def test_the_vehicles_default_configuration_runs_on_a_live_source(tmp_path):
         assert config.light.depth == ("probe" if extra else "fixed") and config.light.compensate == bool(extra)
         summary = run(config, source=LiveCamera(), log=io.StringIO(), out=io.StringIO())
         assert summary.frames == 20 and summary.dropped == 0
-        # each capture under the last pattern with its holes (or segments) lifted to the dim level
+        # each capture under the last pattern with its holes lifted to the dim level; probing, under
+        # the probes' halves of the intervals that the pattern keeps dark between exposures
         last, pulse = (cv2.imread(str(tmp_path / "p" / name), cv2.IMREAD_UNCHANGED) for name in ("18.png", "flash-19.png"))
-        assert last.min() == 0 and np.array_equal(pulse, np.maximum(last, 51))
+        assert last.min() == 0 and set(np.unique(pulse)) == {51, 255}
+        if extra:
+            # (the holes are discs bigger than the intervals here: each half's disc sits at the half's
+            # middle, a few pixels from the whole interval's)
+            assert (last[pulse == 51] == 0).mean() > 0.8 and (pulse == 51).sum() <= (last == 0).sum()
+        else:
+            assert np.array_equal(pulse, np.maximum(last, 51))
         rows = list(csv.DictReader((tmp_path / "d.csv").open()))
         assert len(rows) >= 30 and all(int(r["track_id"]) > 0 for r in rows)
         assert len({r["track_id"] for r in rows}) <= 6  # two particles, few identities

@@ -97,6 +97,19 @@ def test_pulsed_holes_are_dim_only_while_the_camera_exposes():
     assert out["scene_light_kept"] > loop("flash", flash_level=0.2)["scene_light_kept"] + 0.3
 
 
+def test_probing_under_pulse_keeps_the_whole_interval_dark_between_exposures():
+    # at 12 cm the particle's depth is found by bisection; while a probe covers the half that does
+    # not hold it, dim holes leave it fully lit, pulsed ones dark in the refresh the camera skips
+    runs = {strategy: simulate_loop(TwinRun("contrast", "probe", strategy, predict=True, margin_px=2.0),
+                                    geometry=TwinGeometry(camera_size=SIZE, baseline_m=0.12), frames=30,
+                                    latency_ms=5, scene=one_static_particle())
+            for strategy in ("dim", "pulse")}
+    dim, pulse = ([f["removed"] for f in runs[s]["series"]] for s in ("dim", "pulse"))
+    assert min(dim[1:6]) == pytest.approx(0.0, abs=1e-6) and min(pulse[1:6]) >= 0.5 - 1e-6  # probing
+    assert dim[10:] == pytest.approx([0.8] * 20, abs=1e-6) and pulse[10:] == pytest.approx([0.9] * 20, abs=1e-6)
+    assert all(p >= d + 0.1 - 1e-6 for d, p in zip(dim[1:], pulse[1:]))
+
+
 def test_full_light_run_is_the_reference(cli):
     out = simulate_loop(TwinRun(detector=None), geometry=TwinGeometry(camera_size=SIZE), preset="bubbles", frames=5)
     assert out["backscatter_removed"] == 0 and out["scene_light_kept"] == 1 and not out["calibrated"]

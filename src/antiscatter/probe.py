@@ -11,6 +11,10 @@ of a particle's remaining segment and the next exposure says whether that part
 held it (the particle dimmed, or vanished) or not (it stayed as bright as when
 lit).  Bisection over a few frames pins the hole to the particle's depth; a
 hole that stops working (the particle is lit again) reopens the whole segment.
+With pulsed holes (the ``pulse`` strategy) the camera only looks during one
+refresh: the probe's half is shown, lifted to the dim level, then, and the
+whole remaining interval (:meth:`DepthProbe.intervals`) is dark the rest of the
+time, so a particle in the half not probed is not fully lit meanwhile.
 
 Depth is kept as inverse depth w = 1/Z in [1/far, 1/near]: for a
 camera-projector pair the mapping of a plane at depth Z is linear in 1/Z, so
@@ -129,6 +133,10 @@ class DepthProbe:
         for tid, a, b, m, h in zip(ids.tolist(), lo.tolist(), hi.tolist(), mid.tolist(), halve.tolist()):
             out[tid] = (a, m) if h else (a, b)
         return out
+
+    def intervals(self) -> dict[int, tuple[float, float]]:
+        """Each known track's whole remaining interval (inverse depths), where its particle may be."""
+        return {tid: (t.lo, t.hi) for tid, t in self.tracks.items()}
 
     def forget(self, alive: np.ndarray) -> None:
         """Drop the state of tracks that no longer exist."""

@@ -269,6 +269,8 @@ class _Record:
     t_pattern: int  # when rendering ended
     probes: dict = field(default_factory=dict)  # depth probing: each track's interval in this pattern
     hole_ids: Any = None  # the track ids of this pattern's holes
+    intervals: dict | None = None  # depth probing with pulse: each track's whole remaining interval
+    exposure: Any = None  # pulse with probing: the pattern for the next exposure (probe halves lifted)
 
 
 class _Pipeline:
@@ -321,6 +323,8 @@ class _Pipeline:
         self.full_image = np.full((height, width), 255, np.uint8)
         self.last_pattern: np.ndarray | None = None  # the pattern the lamp shows between exposures
         self.pulse_image: np.ndarray | None = None  # the last pattern, lifted (pulse)
+        self.exposure_buffer = (np.empty((height, width), np.uint8)  # pulse with probing: the probe halves
+                                if self.probe is not None and self.pulse_level is not None else None)
         # the light the next exposure gets, in camera pixels at half size (the detector's working scale)
         self.compensate = bool(light.compensate) and light.strategy != "flash" and config.run.mode == "single"
         cw, ch = source.size
@@ -355,7 +359,7 @@ class _Pipeline:
         else:
             detections = found
         t_processed = t1 + sum(stage_ns)
-        holes, track_ns, track_ids, probes = detections, 0, None, {}
+        holes, track_ns, track_ids, probes, intervals = detections, 0, None, {}, None
         if self.tracker is not None:
             t_track = clock()
             captured = frame.timestamp_ns / 1e9
@@ -382,9 +386,13 @@ class _Pipeline:
                                    tracks.ids[tracks.confirmed & (tracks.misses > 0)])
                 self.probe.forget(tracks.ids)
                 probes = self.probe.probes(holes)
+                if self.pulse_level is not None:
+                    intervals = self.probe.intervals()
             track_ns = clock() - t_track
             t_processed = clock()
-        return _Record(frame, t0, t1, detections, stage_ns, track_ns, track_ids, holes, t_processed, 0, probes)
+        rec = _Record(frame, t0, t1, detections, stage_ns, track_ns, track_ids, holes, t_processed, 0, probes)
+        rec.intervals = intervals
+        return rec
 
     def render(self, rec: _Record) -> _Record:
         """Draw the record's holes into the next pattern buffer."""
@@ -393,8 +401,14 @@ class _Pipeline:
         self.next_buffer = (self.next_buffer + 1) % len(self.buffers)
         rec.hole_ids = rec.pattern.track_ids
         if self.probe is not None:
-            rec.pattern = self.probe.render(rec.pattern, rec.probes, size=self.projector_size,
-                                            margin=self.config.pattern.margin, out=buffer, hole=self.hole_level)
+            holes, margin = rec.pattern, self.config.pattern.margin
+            # pulse: between exposures each track's whole interval is dark; the probe's half is
+            # only needed while the camera looks, lifted to the dim level
+            rec.pattern = self.probe.render(holes, rec.probes if rec.intervals is None else rec.intervals,
+                                            size=self.projector_size, margin=margin, out=buffer, hole=self.hole_level)
+            if rec.intervals is not None:
+                rec.exposure = self.probe.render(holes, rec.probes, size=self.projector_size, margin=margin,
+                                                 out=self.exposure_buffer, hole=self.pulse_level)
         else:
             rec.pattern = render_pattern(rec.pattern, size=self.projector_size, mapping=self.mapping,
                                          margin=self.config.pattern.margin, out=buffer, hole=self.hole_level)
@@ -446,7 +460,13 @@ class _Pipeline:
                 self.last_pattern = np.empty_like(shown)
             np.copyto(self.last_pattern, shown)
             if self.pulse_level is not None:
-                self.pulse_image = exposed = np.maximum(shown, np.uint8(self.pulse_level), out=self.pulse_image)
+                if rec.exposure is not None and self.light_on:  # probing: the halves, drawn lifted
+                    if self.pulse_image is None:
+                        self.pulse_image = np.empty_like(rec.exposure)
+                    np.copyto(self.pulse_image, rec.exposure)
+                    exposed = self.pulse_image
+                else:
+                    self.pulse_image = exposed = np.maximum(shown, np.uint8(self.pulse_level), out=self.pulse_image)
         if self.compensate:  # what the next exposure will be lit by: this pattern on the scene
             self.detector.set_light(None if not self.light_on else cv2.warpPerspective(
                 exposed, self.camera_from_projector, self.light_size, flags=cv2.INTER_LINEAR,

@@ -34,8 +34,10 @@ is lost, its hole closes, it is lit again):
 Mappings: ``identity`` (camera pixels scaled to the projector), ``calibrated``
 (the mapping of a plane at the working depth), ``range`` (each hole stretched
 over its particle's whole disparity range, near..far) and ``probe`` (with
-``dim`` and prediction: each track's depth found by bisection over the next
-exposures, :class:`~antiscatter.probe.DepthProbe`).
+``dim`` or ``pulse``: each track's depth found by bisection over the next
+exposures, :class:`~antiscatter.probe.DepthProbe`; under ``pulse`` only the
+exposure's refresh shows the probe's half, lifted, and the other refreshes keep
+the whole interval that may hold the particle dark).
 """
 
 from __future__ import annotations
@@ -69,6 +71,7 @@ class _Probing:
 
     prediction: Prediction
     probes: dict
+    intervals: dict  # each track's whole remaining interval (pulse: dark between exposures)
 
 __all__ = ["TwinGeometry", "TwinRun", "simulate_loop", "default_runs", "STRATEGIES", "MAPPINGS"]
 
@@ -267,7 +270,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                 probe.observe(seen, shown_probes, tracks.ids[tracks.confirmed & (tracks.misses > 0)])
                 probe.forget(tracks.ids)
                 snapshot = tracker.snapshot()
-                return on_at, _Probing(snapshot, probe.probes(snapshot.holes(t0)))
+                return on_at, _Probing(snapshot, probe.probes(snapshot.holes(t0)), probe.intervals())
             if run.predict and run.per_refresh:
                 return on_at, tracker.snapshot()
             holes = tracker.holes(on_at + sub_s / 2 if run.predict else t0 + geometry.exposure_s / 2)
@@ -308,7 +311,10 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                 shown = _holes_pattern(displayed.holes(ts + sub_s / 2), run, **drawn)
             elif isinstance(displayed, _Probing):
                 at = ts + sub_s / 2 if run.predict else displayed.prediction.timestamp
-                shown = _holes_pattern(displayed.prediction.holes(at), run, probes=displayed.probes, **drawn)
+                # pulse: only the exposure's refresh needs the probe's half; the others keep the
+                # whole interval that may hold the particle dark
+                probes = displayed.intervals if run.strategy == "pulse" and j else displayed.probes
+                shown = _holes_pattern(displayed.prediction.holes(at), run, probes=probes, **drawn)
             elif isinstance(displayed, _Fixed):
                 shown = displayed.light
             else:
