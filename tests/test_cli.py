@@ -353,13 +353,13 @@ def test_strategy_coast_tracks_and_flash_needs_single_mode(tmp_path, cli):
     assert bad.code == 2 and "light.strategy: got 'strobe', allowed auto, none, dim, pulse, flash, coast" in bad.err
 
 
-def test_strategy_auto_pulses_and_tracks_on_the_camera_only(tmp_path, cli):
+def test_strategy_auto_dims_and_tracks_on_the_camera_only(tmp_path, cli):
     from antiscatter.config import load_config
 
     on_vehicle = load_config(overrides={"source": {"spec": "camera"}})
-    assert on_vehicle.light.strategy == "pulse" and on_vehicle.track.enabled and on_vehicle.light.depth == "fixed"
+    assert on_vehicle.light.strategy == "dim" and on_vehicle.track.enabled and on_vehicle.light.depth == "fixed"
     threaded = load_config(overrides={"source": {"spec": "camera"}, "run": {"mode": "threads"}})
-    assert threaded.light.strategy == "dim"  # pulsing takes turns with the capture: mode single only
+    assert threaded.light.strategy == "dim"
     replay = load_config()
     assert replay.light.strategy == "none" and not replay.track.enabled and replay.light.depth == "fixed"
     calibration = tmp_path / "cal.json"
@@ -454,8 +454,9 @@ def test_depth_probe_with_pulse_keeps_the_whole_interval_dark_and_probes_half_fo
 
 
 def test_the_vehicles_default_configuration_runs_on_a_live_source(tmp_path):
-    """Camera as source, nothing else said: pulsed dim holes, tracking with prediction, compensation --
-    and with a board calibration, depth probing -- on a free-running source, end to end."""
+    """Camera as source, nothing else said: dim holes, tracking with prediction, compensation --
+    and with a board calibration, depth probing -- on a free-running source, end to end; and the
+    same with pulsed holes."""
     import io
 
     from antiscatter.config import load_config
@@ -480,23 +481,34 @@ def test_the_vehicles_default_configuration_runs_on_a_live_source(tmp_path):
     from antiscatter.calibration import load_calibration
 
     mapping = load_calibration(calibration).homography.tolist()
-    for extra in ({}, {"pattern": {"calibration": str(calibration), "mapping": mapping}}):
+    calibrated = {"pattern": {"calibration": str(calibration), "mapping": mapping}}
+    pulse = {"light": {"strategy": "pulse"}, "track": {"enabled": True}}
+    for extra in ({}, calibrated, pulse, {**pulse, **calibrated}):
         config = load_config(overrides={"source": {"spec": "camera"}, "output": {"outputs": (f"files:{tmp_path / 'p'}",)},
                                         "run": {"detections": str(tmp_path / "d.csv")}, **extra})
-        assert config.light.strategy == "pulse" and config.track.enabled
-        assert config.light.depth == ("probe" if extra else "fixed") and config.light.compensate == bool(extra)
+        pulsed = "light" in extra
+        assert config.light.strategy == ("pulse" if pulsed else "dim") and config.track.enabled
+        probing = "pattern" in extra
+        assert config.light.depth == ("probe" if probing else "fixed") and config.light.compensate == probing
+        for stale in (tmp_path / "p").glob("*.png") if (tmp_path / "p").exists() else ():
+            stale.unlink()
         summary = run(config, source=LiveCamera(), log=io.StringIO(), out=io.StringIO())
         assert summary.frames == 20 and summary.dropped == 0
+        rows = list(csv.DictReader((tmp_path / "d.csv").open()))
+        assert len(rows) >= 30 and all(int(r["track_id"]) > 0 for r in rows)
+        assert len({r["track_id"] for r in rows}) <= 6  # two particles, few identities
+        last = cv2.imread(str(tmp_path / "p" / "18.png"), cv2.IMREAD_UNCHANGED)
+        assert last.min() == (0 if pulsed else 51)
+        if not pulsed:
+            assert not list((tmp_path / "p").glob("flash-*.png"))  # dim: the pattern alone
+            continue
         # each capture under the last pattern with its holes lifted to the dim level; probing, under
         # the probes' halves of the intervals that the pattern keeps dark between exposures
-        last, pulse = (cv2.imread(str(tmp_path / "p" / name), cv2.IMREAD_UNCHANGED) for name in ("18.png", "flash-19.png"))
-        assert last.min() == 0 and set(np.unique(pulse)) == {51, 255}
-        if extra:
+        pulse = cv2.imread(str(tmp_path / "p" / "flash-19.png"), cv2.IMREAD_UNCHANGED)
+        assert set(np.unique(pulse)) == {51, 255}
+        if probing:
             # (the holes are discs bigger than the intervals here: each half's disc sits at the half's
             # middle, a few pixels from the whole interval's)
             assert (last[pulse == 51] == 0).mean() > 0.8 and (pulse == 51).sum() <= (last == 0).sum()
         else:
             assert np.array_equal(pulse, np.maximum(last, 51))
-        rows = list(csv.DictReader((tmp_path / "d.csv").open()))
-        assert len(rows) >= 30 and all(int(r["track_id"]) > 0 for r in rows)
-        assert len({r["track_id"] for r in rows}) <= 6  # two particles, few identities

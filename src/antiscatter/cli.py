@@ -79,10 +79,10 @@ def build_parser() -> argparse.ArgumentParser:
                    "(default: the measured one)")
     g = run.add_argument_group("light strategy (against the closed-loop catch; see antiscatter twin)")
     g.add_argument("--strategy", choices=("auto", "none", "dim", "pulse", "flash", "coast"),
-                   help="auto (default): pulse (dim outside mode single) with tracking on with the camera, else "
-                        "none; none: holes from each frame's detections; dim: holes at --dim-level so "
-                        "darkened particles stay visible; pulse: holes at --dim-level only while the camera "
-                        "exposes, dark otherwise (mode single); flash: a uniform --flash-level frame before each "
+                   help="auto (default): dim with tracking on with the camera, else none; none: holes from each "
+                        "frame's detections; dim: holes at --dim-level so darkened particles stay visible; "
+                        "pulse: holes at --dim-level only while the camera exposes, dark otherwise (mode "
+                        "single; best with the camera triggered by the projector); flash: a uniform --flash-level frame before each "
                         "capture, the pattern the rest of the time (mode single); coast: tracked holes stay on "
                         "particles that went dark (turns --track on)")
     g.add_argument("--dim-level", type=float, help="light left in dim holes, 0..1 (default 0.2)")

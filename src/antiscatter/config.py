@@ -156,16 +156,18 @@ class TrackConfig:
 
 STRATEGIES = ("none", "dim", "pulse", "flash", "coast")
 #: what ``auto`` picks on the vehicle (the camera as source), with tracking and prediction on:
-#: pulsed dim holes -- lifted to ``dim_level`` only while the camera exposes, dark the rest of
-#: the time -- keep darkened particles visible to the detector, so tracks and (with a baseline)
-#: depth probing go on, at a fraction of the light ``dim`` leaves on them.  In the twin (120 Hz
-#: projector, 60 Hz camera, 5 ms; mixed scene): co-located, pulse removes 0.67 keeping 0.92 of
-#: the scene light (dim 0.60 / 0.93, coasting 0.46 / 0.87); a detection flash removes 0.65 but
-#: keeps only 0.61 at 120 Hz; at 480 Hz pulsing still wins (0.71 / 0.94, a full flash 0.69 /
-#: 0.93).  At 12 cm with depth probing pulse removes 0.58 keeping 0.79 (dim 0.45 / 0.86).
-#: Pulsing needs mode single (the lamp changes around each capture); in the other
-#: modes ``auto`` picks ``dim``.
-HARDWARE_STRATEGY = "pulse"
+#: dim holes keep darkened particles visible, so tracks and (with a baseline) depth probing go
+#: on, whatever the camera's timing.  In the twin (120 Hz projector, 60 Hz camera, 5 ms; mixed
+#: scene): co-located, dim removes 0.60 keeping 0.93 of the scene light (coasting 0.46 / 0.87);
+#: at 12 cm with depth probing 0.45 / 0.86.  ``pulse`` does better there -- 0.67 / 0.92
+#: co-located, 0.58 / 0.79 probing at 12 cm, and 0.71 / 0.94 with a 480 Hz projector (a full
+#: flash 0.69 / 0.93) -- but the twin exposes the camera inside one projector refresh, which
+#: needs the camera locked to the projector (the IMX296's external trigger on the projector's
+#: vsync).  A free-running camera gives each pulse or flash the next exposure that starts after
+#: it went on: the earlier one is skipped, which about halves the frame rate, and the pulse
+#: stays on until that frame is read.  So ``auto`` keeps ``dim``; choose ``pulse`` with a
+#: locked camera.
+HARDWARE_STRATEGY = "dim"
 
 
 @dataclass(frozen=True)
@@ -173,8 +175,7 @@ class LightConfig:
     """How the lamp works around the closed-loop catch (a particle dark in its hole is
     lost by the next frame's detector; see ``antiscatter twin``).
 
-    strategy: ``auto`` (default: ``pulse`` -- ``dim`` outside mode single -- with tracking on
-        with the camera as source, ``none``
+    strategy: ``auto`` (default: ``dim`` with tracking on with the camera as source, ``none``
         otherwise -- files and the simulator do not see the light), ``none`` (holes from this frame's detections), ``dim`` (holes at
         ``dim_level`` of full light, so dimmed particles stay visible), ``pulse`` (holes at
         ``dim_level`` while the camera exposes, dark the rest of the time: before each capture
@@ -417,8 +418,7 @@ def load_config(path: str | Path | None = None, overrides: dict[str, dict[str, A
     camera = sections["source"].spec.split(":")[0] == "camera"
     track = sections["track"]
     if light.strategy == "auto":
-        hardware = HARDWARE_STRATEGY if sections["run"].mode == "single" else "dim"  # pulsing takes turns
-        light = dataclasses.replace(light, strategy=hardware if camera else "none")
+        light = dataclasses.replace(light, strategy=HARDWARE_STRATEGY if camera else "none")
         if camera:
             track = dataclasses.replace(track, enabled=True)
     if light.depth == "auto":
