@@ -28,6 +28,18 @@ def test_a_particle_under_full_white_and_all_black_light():
     assert _mean_over_discs(hole, np.array([150.0]), np.array([100.0]), np.array([10.0]))[0] < 0.02
 
 
+def test_a_particle_weighs_its_brightness_times_its_image_area():
+    from antiscatter.twin import backscatter_weight
+
+    scene = one_static_particle()
+    g = TwinGeometry(camera_size=SIZE)
+    p = scene.particles()
+    one = backscatter_weight(scene, g, p)[0]
+    assert one == pytest.approx(scene.full_light_brightness()[0] * (g.camera_focal * p["R"][0] / p["Z"][0]) ** 2)
+    p["R"] = p["R"] / 10  # a tenth of the size at the same distance: a hundredth of the light
+    assert backscatter_weight(scene, g, p)[0] == pytest.approx(one / 100)
+
+
 def test_disparity_of_a_known_baseline():
     g = TwinGeometry(baseline_m=0.12)
     shift = g.plane_mapping(1.0)[0, 2] - g.plane_mapping(2.0)[0, 2]
