@@ -385,7 +385,7 @@ def test_compensation_tells_the_detector_the_light_of_the_last_pattern(tmp_path,
     monkeypatch.setattr(runtime, "make_detector", recording)
     frames = _disc_frames(tmp_path)
     config = load_config(overrides={"source": {"spec": str(frames)}, "output": {"outputs": ("none",)},
-                                    "light": {"strategy": strategy, "compensate": True}})
+                                    "light": {"strategy": strategy, "compensate": True, "dim_level": 0.2}})
     runtime.run(config, log=__import__("io").StringIO(), out=__import__("io").StringIO())
     assert len(seen) == 4 and seen[0].shape == (60, 80)  # half the 160x120 camera frame
     # the particle at (30, 40) had a dim hole (pulse: dark, lifted for the exposure): its place is
@@ -407,8 +407,9 @@ def test_depth_probe_draws_each_unknown_particle_over_its_epipolar_segment(tmp_p
     frames.mkdir()
     for i in range(3):  # right of centre, so the whole segment lands on the projector
         cv2.imwrite(str(frames / f"{i}.png"), draw_discs((160, 120), [(100.0, 60.0, 3.0)]))
-    result = cli("run", str(frames), "--strategy", "dim", "--depth", "probe", "--calibration", str(calibration),
-                 "--output", f"files:{tmp_path / 'pat'}", "--detections", str(tmp_path / "d.csv"))
+    result = cli("run", str(frames), "--strategy", "dim", "--dim-level", "0.2", "--depth", "probe",
+                 "--calibration", str(calibration), "--output", f"files:{tmp_path / 'pat'}",
+                 "--detections", str(tmp_path / "d.csv"))
     assert result.code == 0, result.err
     assert "track_id" in (tmp_path / "d.csv").open().readline()  # probing tracks particles
     pattern = cv2.imread(str(tmp_path / "pat" / "0.png"), cv2.IMREAD_UNCHANGED)
@@ -435,8 +436,8 @@ def test_depth_probe_with_pulse_keeps_the_whole_interval_dark_and_probes_half_fo
     frames.mkdir()
     for i in range(3):
         cv2.imwrite(str(frames / f"{i}.png"), draw_discs((160, 120), [(100.0, 60.0, 3.0)]))
-    result = cli("run", str(frames), "--strategy", "pulse", "--depth", "probe", "--calibration", str(calibration),
-                 "--output", f"files:{tmp_path / 'pat'}")
+    result = cli("run", str(frames), "--strategy", "pulse", "--dim-level", "0.2", "--depth", "probe",
+                 "--calibration", str(calibration), "--output", f"files:{tmp_path / 'pat'}")
     assert result.code == 0, result.err
     cal = load_calibration(calibration)
     pattern = cv2.imread(str(tmp_path / "pat" / "0.png"), cv2.IMREAD_UNCHANGED)
@@ -497,18 +498,19 @@ def test_the_vehicles_default_configuration_runs_on_a_live_source(tmp_path):
         rows = list(csv.DictReader((tmp_path / "d.csv").open()))
         assert len(rows) >= 30 and all(int(r["track_id"]) > 0 for r in rows)
         assert len({r["track_id"] for r in rows}) <= 6  # two particles, few identities
+        level = round(config.light.dim_level * 255)
         last = cv2.imread(str(tmp_path / "p" / "18.png"), cv2.IMREAD_UNCHANGED)
-        assert last.min() == (0 if pulsed else 51)
+        assert last.min() == (0 if pulsed else level)
         if not pulsed:
             assert not list((tmp_path / "p").glob("flash-*.png"))  # dim: the pattern alone
             continue
         # each capture under the last pattern with its holes lifted to the dim level; probing, under
         # the probes' halves of the intervals that the pattern keeps dark between exposures
         pulse = cv2.imread(str(tmp_path / "p" / "flash-19.png"), cv2.IMREAD_UNCHANGED)
-        assert set(np.unique(pulse)) == {51, 255}
+        assert set(np.unique(pulse)) == {level, 255}
         if probing:
             # (the holes are discs bigger than the intervals here: each half's disc sits at the half's
             # middle, a few pixels from the whole interval's)
-            assert (last[pulse == 51] == 0).mean() > 0.8 and (pulse == 51).sum() <= (last == 0).sum()
+            assert (last[pulse == level] == 0).mean() > 0.8 and (pulse == level).sum() <= (last == 0).sum()
         else:
-            assert np.array_equal(pulse, np.maximum(last, 51))
+            assert np.array_equal(pulse, np.maximum(last, level))

@@ -112,7 +112,8 @@ def test_pulsed_holes_are_dim_only_while_the_camera_exposes():
 def test_probing_under_pulse_keeps_the_whole_interval_dark_between_exposures():
     # at 12 cm the particle's depth is found by bisection; while a probe covers the half that does
     # not hold it, dim holes leave it fully lit, pulsed ones dark in the refresh the camera skips
-    runs = {strategy: simulate_loop(TwinRun("contrast", "probe", strategy, predict=True, margin_px=2.0),
+    runs = {strategy: simulate_loop(TwinRun("contrast", "probe", strategy, predict=True, margin_px=2.0,
+                                            dim_level=0.2),
                                     geometry=TwinGeometry(camera_size=SIZE, baseline_m=0.12), frames=30,
                                     latency_ms=5, scene=one_static_particle())
             for strategy in ("dim", "pulse")}

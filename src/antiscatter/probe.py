@@ -59,7 +59,7 @@ class DepthProbe:
     mapping_at: Callable[[float], np.ndarray]
     near_m: float = 0.3
     far_m: float = 3.0
-    dim_level: float = 0.2
+    dim_level: float = 0.1
     settle_px: float = 12.0
     tracks: dict[int, _Track] = field(default_factory=dict)
 

@@ -157,7 +157,7 @@ class TwinRun:
     strategy: str = "none"
     predict: bool = False
     per_refresh: bool = True
-    dim_level: float = 0.2
+    dim_level: float = 0.1
     flash_level: float = 0.25
     margin_px: float = 2.0
 
