@@ -390,9 +390,8 @@ class _Pipeline:
                     intervals = self.probe.intervals()
             track_ns = clock() - t_track
             t_processed = clock()
-        rec = _Record(frame, t0, t1, detections, stage_ns, track_ns, track_ids, holes, t_processed, 0, probes)
-        rec.intervals = intervals
-        return rec
+        return _Record(frame, t0, t1, detections, stage_ns, track_ns, track_ids, holes, t_processed, 0, probes,
+                       intervals=intervals)
 
     def render(self, rec: _Record) -> _Record:
         """Draw the record's holes into the next pattern buffer."""
