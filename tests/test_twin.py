@@ -148,8 +148,8 @@ def test_curves_plot(tmp_path):
     from antiscatter.twin import plot_curves
     curves = plot_curves(str(tmp_path / "t.png"), geometry=TwinGeometry(camera_size=(200, 150)), preset="bubbles",
                          frames=3, latencies_ms=(0.0, 20.0), baselines_m=(0.0, 0.12))
-    assert set(curves["by_latency"]) == {"none", "coast+predict", "dim+predict", "pulse+predict", "flash+predict",
-                                       "probe+pulse+predict"}
+    assert set(curves["by_latency"]) == {"seed, identity", "none", "coast+predict", "dim+predict", "pulse+predict",
+                                       "flash+predict", "probe+pulse+predict"}
     assert all(len(v) == 2 for v in curves["by_baseline"].values())
     assert cv2.imread(str(tmp_path / "t.png")) is not None
 

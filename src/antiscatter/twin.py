@@ -409,13 +409,14 @@ def plot_curves(path: str, *, geometry: TwinGeometry, preset: str = "mixed", fra
                 latencies_ms: tuple[float, ...] = (0.0, 5.0, 10.0, 20.0, 40.0),
                 baselines_m: tuple[float, ...] = (0.0, 0.03, 0.06, 0.12, 0.2)) -> dict[str, Any]:
     """Backscatter removed and scene light kept against latency (at the geometry's baseline) and against
-    baseline (at 5 ms), for the default detector with the calibrated mapping (and depth probing);
-    written as a PNG."""
+    baseline (at 5 ms), for the default detector with the calibrated mapping (and depth probing) and,
+    beside them, the report's ``seed`` detector with the identity mapping; written as a PNG."""
     from dataclasses import replace as _replace
 
     from .bench import _pyplot
 
-    runs = {"none": TwinRun("contrast", "calibrated"), "coast+predict": TwinRun("contrast", "calibrated", "coast", True),
+    runs = {"seed, identity": TwinRun("seed", "identity"),
+            "none": TwinRun("contrast", "calibrated"), "coast+predict": TwinRun("contrast", "calibrated", "coast", True),
             "dim+predict": TwinRun("contrast", "calibrated", "dim", True),
             "pulse+predict": TwinRun("contrast", "calibrated", "pulse", True),
             "flash+predict": TwinRun("contrast", "calibrated", "flash", True),
@@ -441,8 +442,8 @@ def plot_curves(path: str, *, geometry: TwinGeometry, preset: str = "mixed", fra
     axes[0].set_title(f"against latency (baseline {geometry.baseline_m:g} m)")
     axes[1].set_title("against baseline (latency 5 ms)")
     handles, labels = axes[1].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=6, fontsize=7)
-    fig.suptitle(f"antiscatter twin: {preset}, {frames} frames, default detector, calibrated mapping")
+    fig.legend(handles, labels, loc="lower center", ncol=7, fontsize=7)
+    fig.suptitle(f"antiscatter twin: {preset}, {frames} frames; default detector, calibrated mapping (seed: identity)")
     fig.tight_layout(rect=(0, 0.1, 1, 1))
     fig.savefig(path, dpi=100)
     plt.close(fig)
