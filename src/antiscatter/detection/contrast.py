@@ -115,10 +115,10 @@ def downsample(image: np.ndarray, *, factor: int = 2) -> np.ndarray:
     """(H, W, 3) BGR or (H, W) grey -> (H/f, W/f) uint8: f x f area mean of one channel (green for BGR);
     at f = 1 a 3x3 Gaussian instead, the same noise suppression without decimation."""
     height, width = image.shape[:2]
+    if image.ndim == 3:  # the channel first: resizing one plane is cheaper than three (same result)
+        image = cv2.extractChannel(image, 1 if image.shape[2] >= 3 else 0)
     if factor > 1:
         image = cv2.resize(image, (width // factor, height // factor), interpolation=cv2.INTER_AREA)
-    if image.ndim == 3:
-        image = cv2.extractChannel(image, 1 if image.shape[2] >= 3 else 0)
     if factor == 1:  # the same matched filter as the 2x2 mean, without decimation
         image = cv2.GaussianBlur(image, (3, 3), 0)
     return image
@@ -476,9 +476,13 @@ def _necked(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, n
     gives 1 and two touching equal discs 2/3."""
     area = np.bincount(lab, minlength=n)
     candidates = candidates & (area >= _MIN_CORE)
-    if candidates.any():  # a whole component that is plainly a disc has a disc for a core: skip it
-        candidates &= ~_compact(lab, x.astype(np.float64), y.astype(np.float64), n, 0.95)
     sel = candidates[lab]
+    if not sel.any():
+        return np.empty(0, np.intp)
+    lab, x, y, weight = lab[sel], x[sel], y[sel], weight[sel]
+    # a whole component that is plainly a disc has a disc for a core: skip it
+    disc = _compact(lab, x.astype(np.float64), y.astype(np.float64), n, 0.95)
+    sel = ~disc[lab]
     if not sel.any():
         return np.empty(0, np.intp)
     lab, x, y, weight = lab[sel], x[sel], y[sel], weight[sel]
