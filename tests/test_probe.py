@@ -61,8 +61,10 @@ def test_the_segment_spans_the_disparity_between_near_and_far():
 def test_a_probed_hole_withholds_light_over_its_interval_and_no_further():
     p = probe()
     centre = np.array([[400.0, 300.0]])
-    hole = Detections(centre, [3.0], track_ids=[5])
-    lo, hi = p.w_far, (p.w_far + p.w_near) / 2  # the far half of the segment
+    hole = Detections(centre, [3.0], scores=[80.0], track_ids=[5])
+    p.observe(hole, {}, np.empty(0))  # a track seen lit: its probe is the far half of its interval
+    lo, hi = p.probes(hole)[5]
+    assert (lo, hi) == (p.w_far, (p.w_far + p.w_near) / 2)
     pattern = p.render(hole, {5: (lo, hi)}, size=GEOMETRY.projector_size, margin=2.0)
     a = GEOMETRY.plane_mapping(1 / lo) @ [400.0, 300.0, 1.0]
     b = GEOMETRY.plane_mapping(1 / hi) @ [400.0, 300.0, 1.0]
@@ -74,11 +76,13 @@ def test_a_probed_hole_withholds_light_over_its_interval_and_no_further():
     # caps included, the dark pixels span the interval: none more than a pixel past either end
     assert along.min() >= -1.5 and along.max() <= length + 1.5
     assert along.min() <= 1.5 and along.max() >= length - 1.5
-    # without an interval (depth unknown) the whole segment is drawn, caps and all
-    whole = p.render(hole, {}, size=GEOMETRY.projector_size, margin=2.0)
+    # a whole interval -- depth unknown, or the one kept dark between pulses -- only has to cover
+    # the particle: drawn in full, caps and all
     far = GEOMETRY.plane_mapping(3.0) @ [400.0, 300.0, 1.0]
-    ys, xs = np.nonzero(whole == 0)
-    assert ((np.column_stack([xs, ys]) - far[:2] / far[2]) @ direction).min() < -3
+    for whole in (p.render(hole, {}, size=GEOMETRY.projector_size, margin=2.0),
+                  p.render(hole, p.intervals(), size=GEOMETRY.projector_size, margin=2.0)):
+        ys, xs = np.nonzero(whole == 0)
+        assert ((np.column_stack([xs, ys]) - far[:2] / far[2]) @ direction).min() < -3
 
 
 def test_probe_runs_need_dim_holes():

@@ -149,13 +149,15 @@ class DepthProbe:
                margin: float = 0.0, out: np.ndarray | None = None, hole: int = 0) -> np.ndarray:
         """The pattern: each hole drawn as a thick segment over its probe interval (uint8, 255 = light).
 
-        A thick line's round caps reach half its thickness past its ends; a probed hole's
-        segment is drawn that much shorter at each end (down to a disc at its middle), so the
-        light it withholds -- caps included -- spans its interval and no more.  Otherwise a
-        particle just past the interval's end is dimmed by the cap, judged under the probe, and
-        every such verdict pushes the bisection the same way: in the twin the settled depths sat
-        a median 8 projector px too far, beside their particles.  Holes without a probe
-        interval (the whole near..far range) are drawn in full, caps and all.
+        A thick line's round caps reach half its thickness past its ends.  A probe -- the part
+        of its track's interval that the next exposure judges -- is drawn that much shorter at
+        each end (down to a disc at its middle), so the light it withholds, caps included,
+        spans its interval and no more.  Otherwise a particle just past the probe's end is
+        dimmed by the cap, judged under it, and every such verdict pushes the bisection the
+        same way: in the twin the settled depths sat a median 8 projector px too far, beside
+        their particles.  A whole interval -- unknown depth, a settled one, or the one kept
+        dark between pulses -- only has to cover the particle and is drawn in full, caps and
+        all (in the twin, at 12 cm: 0.786 removed instead of 0.771 at the same scene light).
         """
         out = blank_pattern(size, out)
         if len(holes) == 0:
@@ -169,7 +171,10 @@ class DepthProbe:
         b = far + _t(hi, self)[:, None] * (near - far)
         _, radii = map_to_projector(holes, self._h_far)
         thickness = np.maximum(1, np.rint(2 * (radii + margin))).astype(int)
-        probed = np.array([t in probes for t in ids], bool)
+        # a probe is a part of its track's interval that the next exposure judges; a whole interval
+        # (settled, or kept dark between pulses) only has to cover the particle, caps and all
+        probed = np.array([t in probes and t in self.tracks and probes[t] != (self.tracks[t].lo, self.tracks[t].hi)
+                           for t in ids], bool)
         if probed.any():
             length = np.hypot(*(b - a).T)
             inset = np.where(probed, np.minimum(thickness / 2.0, length / 2.0), 0.0)
