@@ -38,6 +38,22 @@ def test_bisection_finds_a_particles_depth_from_lit_and_dimmed_exposures():
     assert (p.tracks[7].lo, p.tracks[7].hi) == (p.w_far, p.w_near)
 
 
+@pytest.mark.parametrize("covered, under", [(0.7, True), (0.3, False)])
+def test_a_particle_is_under_the_probe_when_most_of_it_is(covered, under):
+    # a big particle straddling the probe's end: the share of it under the probe gets 0.1 of the light
+    p = DepthProbe(GEOMETRY.plane_mapping, near_m=0.3, far_m=3.0, dim_level=0.1)
+    centre = np.array([[400.0, 300.0]])
+    lit = 100.0
+    p.observe(Detections(centre, [8.0], scores=[lit], track_ids=[2]), {}, np.empty(0))
+    a, b = p.probes(Detections(centre, [8.0], track_ids=[2]))[2]
+    seen = lit * (covered * 0.1 + (1 - covered))
+    p.observe(Detections(centre, [8.0], scores=[seen], track_ids=[2]), {2: (a, b)}, np.empty(0))
+    track = p.tracks[2]
+    assert ((track.lo, track.hi) == (a, b)) is under  # under: the probe's half; not: the other half
+    if not under:
+        assert (track.lo, track.hi) == (b, p.w_near)
+
+
 def test_the_segment_spans_the_disparity_between_near_and_far():
     p = probe()
     centre = np.array([[400.0, 300.0]])
