@@ -65,6 +65,7 @@ fps = 30
     ("[detector]\nname = 'seed'\n[detector.seed]\nthreshold = 300\n", "run.toml: detector.seed.threshold: got 300, allowed 0..255"),
     ("[detector]\nname = 'seed'\n[detector.seed]\ncolour = 1\n", "run.toml: unknown key detector.seed.colour; allowed: threshold, blur_kernel, canny_sigma, equalise"),
     ("[detector.contrast]\nk = -1\n", "run.toml: detector.contrast.k: got -1.0, allowed > 0"),
+    ("[track]\nrevive_frames = -2\n", "run.toml: track.revive_frames: got -2, allowed >= 0 (0 = off)"),
     ("[detector.fancy]\nx = 1\n", "run.toml: unknown section [detector.fancy]; allowed: detector.contrast, detector.seed"),
     ("[detector]\nname = 'fancy'\n", "unknown detector 'fancy'; allowed: contrast, seed"),
     ("[lamp]\nx = 1\n", "run.toml: unknown section [lamp]; allowed: source, detector, pattern, output, run"),

@@ -134,6 +134,8 @@ class TrackConfig:
     max_misses: frames a confirmed track keeps its hole without a detection (coasting).
     max_dark: frames a confirmed track keeps its hole while its particle was under it during the
         exposure (its misses are expected); 0 = counted as ordinary misses (default; see Tracker).
+    revive_frames: frames a deleted track may come back with its id when a detection appears
+        where it would be (0 = off, default; better identities for counting, see Tracker).
     """
 
     enabled: bool = False
@@ -142,6 +144,7 @@ class TrackConfig:
     confirm_hits: int = 3
     max_misses: int = 5
     max_dark: int = 0
+    revive_frames: int = 0
 
     def __post_init__(self) -> None:
         if not math.isfinite(self.latency_ms):
@@ -152,6 +155,8 @@ class TrackConfig:
             raise ValueError(f"max_misses: got {self.max_misses}, allowed >= 0")
         if self.max_dark < 0:
             raise ValueError(f"max_dark: got {self.max_dark}, allowed >= 0 (0 = off)")
+        if self.revive_frames < 0:
+            raise ValueError(f"revive_frames: got {self.revive_frames}, allowed >= 0 (0 = off)")
 
 
 STRATEGIES = ("none", "dim", "pulse", "flash", "coast")

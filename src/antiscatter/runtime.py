@@ -273,6 +273,11 @@ class _Record:
     exposure: Any = None  # pulse with probing: the pattern for the next exposure (probe halves lifted)
 
 
+#: frames per second of a folder of images, which has no clock of its own, when the run is not
+#: paced (``--fps``): the camera's default rate
+FOLDER_FPS = 60.0
+
+
 class _Pipeline:
     """Per-run state shared by the execution modes: process a frame, emit a result."""
 
@@ -296,6 +301,12 @@ class _Pipeline:
             if mapping is None:
                 mapping = calibration.homography
         self.mapping = scale_mapping(source.size, self.projector_size) if mapping is None else mapping
+        # the tracker's clock: a camera's sensor time; a file's or the simulator's own frame times
+        # (replays run faster or slower than they were taken, and velocities are per scene second)
+        self.frame_interval = None
+        if not getattr(source, "live", False):
+            rate = source.fps or config.run.fps or FOLDER_FPS
+            self.frame_interval = 1.0 / rate
         self.probe = None
         self.shown_probes: dict = {}  # each track's interval in the pattern the next exposure sees
         self.unlit_ids: np.ndarray | None = None  # tracks whose holes the next exposure is taken under
@@ -362,7 +373,8 @@ class _Pipeline:
         holes, track_ns, track_ids, probes, intervals = detections, 0, None, {}, None
         if self.tracker is not None:
             t_track = clock()
-            captured = frame.timestamp_ns / 1e9
+            captured = (frame.timestamp_ns / 1e9 if self.frame_interval is None
+                        else frame.index * self.frame_interval)
             tracks = self.tracker.update(detections, captured, unlit=self.unlit_ids)
             track_ids = tracks.detection_ids
             prediction = self.tracker.snapshot()
@@ -586,7 +598,8 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
     tracker = None
     if tc.enabled:
         from .tracking import Tracker
-        tracker = Tracker(confirm_hits=tc.confirm_hits, max_misses=tc.max_misses, max_dark=tc.max_dark)
+        tracker = Tracker(confirm_hits=tc.confirm_hits, max_misses=tc.max_misses, max_dark=tc.max_dark,
+                          revive_frames=tc.revive_frames)
     if tracker is None:
         timed.remove("Tracking Duration (s)")
     summary.durations = {c: RunningStats() for c in timed}

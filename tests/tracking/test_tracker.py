@@ -97,6 +97,34 @@ def test_a_particle_seen_twice_moves_its_hole_before_it_is_confirmed():
     assert holes.radii[0] > 3.0  # grown by the uncertainty of a two-point velocity
 
 
+def test_a_particle_back_after_a_gap_gets_its_id_back_with_revive_frames():
+    def gap_run(revive):
+        tracker = Tracker(confirm_hits=3, max_misses=1, revive_frames=revive)
+        ids = []
+        for f in range(12):
+            x = 50.0 + 6 * f  # 360 px/s to the right, unseen in frames 5-7
+            found = Detections.empty() if 5 <= f <= 7 else Detections([[x, 40.0]], [3.0])
+            tracks = tracker.update(found, f * DT)
+            ids.extend(tracks.detection_ids.tolist())
+        return ids, tracker
+    ids, _ = gap_run(0)
+    assert len(set(ids)) == 2  # deleted after one miss; a new track when it comes back
+    ids, tracker = gap_run(5)
+    assert len(set(ids)) == 1  # revived: where its motion carried it
+    holes = tracker.holes(11 * DT)
+    assert holes.centres[0, 0] == pytest.approx(50 + 6 * 11, abs=1.0)
+    # a detection far from where the dead track would be is a new particle
+    tracker = Tracker(confirm_hits=3, max_misses=1, revive_frames=5)
+    for f in range(5):
+        tracker.update(Detections([[50.0 + 6 * f, 40.0]], [3.0]), f * DT)
+    for f in range(5, 8):
+        tracker.update(Detections.empty(), f * DT)
+    tracks = tracker.update(Detections([[300.0, 200.0]], [3.0]), 8 * DT)
+    assert tracks.detection_ids[0] != 1
+    with pytest.raises(ValueError, match="revive_frames"):
+        Tracker(revive_frames=-1)
+
+
 def test_empty_frames():
     tracker = Tracker()
     tracks = tracker.update(Detections.empty(), 0.0)

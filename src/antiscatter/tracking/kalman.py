@@ -79,14 +79,23 @@ class Tracker:
     position_noise : detected centre noise, px (default 0.7).
     radius_measurement_noise : detected radius noise, px (default 1).
     initial_speed : prior speed spread of a new track, px/s (default 400).
+    revive_frames : for this many frames after a track seen twice or more is deleted, a
+        detection that no live track takes but that lies within the dead track's gate (its
+        motion carried on) gets the dead track's id and state back instead of a new one; it
+        starts over as a new track otherwise (confirmation, a hole that follows it only from
+        its next sighting).  0 = off (default).  Measured (5 frames): IDF1 +0.013..+0.029 on
+        bubbles, snow, sand, mixed, textured, -0.006..-0.016 on seed and dense; in the twin
+        (pulse, 5 ms, seeds 1-3) removed -0.005..0 co-located and +0.004..-0.03 at 12 cm
+        probing -- identities help counting, not the light, so it is off for the lamp.
     """
 
     def __init__(self, *, confirm_hits: int = 3, max_misses: int = 5, tentative_misses: int = 1,
                  max_dark: int = 0, gate_sigma: float = 4.0,
                  min_gate: float = 3.0, max_gate: float = 80.0, accel_noise: float = 3000.0,
                  radius_noise: float = 4.0, position_noise: float = 0.7,
-                 radius_measurement_noise: float = 1.0, initial_speed: float = 400.0) -> None:
-        checks = {"confirm_hits": confirm_hits >= 1, "max_misses": max_misses >= 0,
+                 radius_measurement_noise: float = 1.0, initial_speed: float = 400.0,
+                 revive_frames: int = 0) -> None:
+        checks = {"confirm_hits": confirm_hits >= 1, "max_misses": max_misses >= 0, "revive_frames": revive_frames >= 0,
                   "tentative_misses": 0 <= tentative_misses <= max_misses, "max_dark": max_dark >= 0,
                   "gate_sigma": gate_sigma > 0, "min_gate": min_gate > 0, "max_gate": max_gate >= min_gate,
                   "accel_noise": accel_noise >= 0, "radius_noise": radius_noise >= 0,
@@ -117,19 +126,51 @@ class Tracker:
         self.dark = np.empty(0, np.int64)  # of the misses in a row, how many were expected (unlit)
         self.timestamp: float | None = None
         self._next_id = 1
+        self.revive_frames = revive_frames
+        # deleted tracks that may come back: the same arrays, carried forward in time, and
+        # the updates each has left
+        self._dead: dict[str, np.ndarray] = {}
 
     # ------------------------------------------------------------- model
     def _predict(self, dt: float) -> None:
         if dt <= 0 or len(self.x) == 0:
             return
+        self.x, self.pp, self.pv, self.vv, self.rr = self._advance(self.x, self.pp, self.pv, self.vv, self.rr, dt)
+
+    def _advance(self, x, pp, pv, vv, rr, dt: float):
+        """State and covariance blocks carried ``dt`` seconds forward (new arrays)."""
         q = self.accel_noise ** 2
-        self.x[:, 0:2] += self.x[:, 2:4] * dt
+        x = x.copy()
+        x[:, 0:2] += x[:, 2:4] * dt
         # P' = F P F^T + Q per axis, F = [[1, dt], [0, 1]], Q = q [[dt^4/4, dt^3/2], [dt^3/2, dt^2]]
-        pp, pv, vv = self.pp, self.pv, self.vv
-        self.pp = pp + 2 * dt * pv + dt * dt * vv + q * dt ** 4 / 4
-        self.pv = pv + dt * vv + q * dt ** 3 / 2
-        self.vv = vv + q * dt * dt
-        self.rr = self.rr + self.radius_noise ** 2 * dt
+        return (x, pp + 2 * dt * pv + dt * dt * vv + q * dt ** 4 / 4, pv + dt * vv + q * dt ** 3 / 2,
+                vv + q * dt * dt, rr + self.radius_noise ** 2 * dt)
+
+    def _gates(self, pp: np.ndarray) -> np.ndarray:
+        spread = np.sqrt(np.max(pp, axis=1) + self.measurement[0, 0]) if len(pp) else np.empty(0)
+        return np.clip(self.gate_sigma * spread, self.min_gate, self.max_gate)
+
+    def _correct(self, t: np.ndarray, k: np.ndarray, detections: Detections) -> None:
+        """Kalman update of tracks ``t`` with detections ``k`` (index arrays)."""
+        m_pos, m_rad = self.measurement[0, 0], self.measurement[2, 2]
+        pp, pv, vv = self.pp[t], self.pv[t], self.vv[t]
+        s_pos = pp + m_pos  # innovation variance per axis
+        k_p, k_v = pp / s_pos, pv / s_pos  # Kalman gains for position and velocity
+        innovation = detections.centres[k] - self.x[t, 0:2]
+        self.x[t, 0:2] += k_p * innovation
+        self.x[t, 2:4] += k_v * innovation
+        self.pp[t] = (1 - k_p) * pp
+        self.pv[t] = (1 - k_p) * pv
+        self.vv[t] = vv - k_v * pv
+        rr = self.rr[t]
+        k_r = rr / (rr + m_rad)
+        self.x[t, 4] += k_r * (detections.radii[k] - self.x[t, 4])
+        self.rr[t] = (1 - k_r) * rr
+        self.hits[t] += 1
+        self.misses[t] = 0
+        self.dark[t] = 0
+
+    _FIELDS = ("x", "pp", "pv", "vv", "rr", "ids", "hits", "misses", "dark")
 
     # ------------------------------------------------------------ update
     def update(self, detections: Detections, timestamp: float, *, unlit: np.ndarray | None = None) -> Tracks:
@@ -144,31 +185,18 @@ class Tracker:
         if dt < 0:
             raise ValueError(f"timestamp: got {timestamp}, earlier than the last update {self.timestamp}")
         self._predict(dt)
+        if self._dead and dt > 0:
+            dead = self._dead
+            dead["x"], dead["pp"], dead["pv"], dead["vv"], dead["rr"] = self._advance(
+                dead["x"], dead["pp"], dead["pv"], dead["vv"], dead["rr"], dt)
         self.timestamp = timestamp
-        n, d = len(self.x), len(detections)
+        d = len(detections)
         m_pos, m_rad = self.measurement[0, 0], self.measurement[2, 2]
-        spread = np.sqrt(np.max(self.pp, axis=1) + m_pos) if n else np.empty(0)
-        gate = np.clip(self.gate_sigma * spread, self.min_gate, self.max_gate)
-        matches, unmatched_tracks, unmatched_dets = match(self.x[:, :2], gate, detections.centres)
+        matches, unmatched_tracks, unmatched_dets = match(self.x[:, :2], self._gates(self.pp), detections.centres)
         detection_ids = np.full(d, -1, np.int64)
         if len(matches):
             t, k = matches[:, 0], matches[:, 1]
-            pp, pv, vv = self.pp[t], self.pv[t], self.vv[t]
-            s_pos = pp + m_pos  # innovation variance per axis
-            k_p, k_v = pp / s_pos, pv / s_pos  # Kalman gains for position and velocity
-            innovation = detections.centres[k] - self.x[t, 0:2]
-            self.x[t, 0:2] += k_p * innovation
-            self.x[t, 2:4] += k_v * innovation
-            self.pp[t] = (1 - k_p) * pp
-            self.pv[t] = (1 - k_p) * pv
-            self.vv[t] = vv - k_v * pv
-            rr = self.rr[t]
-            k_r = rr / (rr + m_rad)
-            self.x[t, 4] += k_r * (detections.radii[k] - self.x[t, 4])
-            self.rr[t] = (1 - k_r) * rr
-            self.hits[t] += 1
-            self.misses[t] = 0
-            self.dark[t] = 0
+            self._correct(t, k, detections)
             detection_ids[k] = self.ids[t]
         if len(unmatched_tracks):
             self.misses[unmatched_tracks] += 1
@@ -186,10 +214,12 @@ class Tracker:
             unexpected, alive = self.misses, True
         keep = np.where(confirmed, unexpected <= self.max_misses, unexpected <= self.tentative_misses) & alive
         if not keep.all():
-            self.x, self.pp, self.pv, self.vv, self.rr = (self.x[keep], self.pp[keep], self.pv[keep],
-                                                          self.vv[keep], self.rr[keep])
-            self.ids, self.hits, self.misses = self.ids[keep], self.hits[keep], self.misses[keep]
-            self.dark = self.dark[keep]
+            if self.revive_frames:
+                self._bury(~keep & (self.hits >= MOVING_HITS))
+            for name in self._FIELDS:
+                setattr(self, name, getattr(self, name)[keep])
+        if self._dead:
+            unmatched_dets = self._revive(detections, unmatched_dets, detection_ids)
         if len(unmatched_dets):
             k = unmatched_dets
             m = len(k)
@@ -210,6 +240,42 @@ class Tracker:
             detection_ids[k] = new_ids
         return Tracks(self.ids.copy(), self.x[:, :2].copy(), self.x[:, 2:4].copy(), self.x[:, 4].copy(),
                       self.hits >= self.confirm_hits, self.misses.copy(), timestamp, detection_ids)
+
+    # ------------------------------------------------------------ revival
+    def _bury(self, dead: np.ndarray) -> None:
+        """Keep the deleted tracks ``dead`` (bool) for ``revive_frames`` updates."""
+        if not dead.any():
+            return
+        rows = {name: getattr(self, name)[dead] for name in self._FIELDS}
+        rows["left"] = np.full(int(dead.sum()), self.revive_frames, np.int64)
+        self._dead = rows if not self._dead else {name: np.concatenate([self._dead[name], rows[name]])
+                                                  for name in rows}
+
+    def _revive(self, detections: Detections, unmatched: np.ndarray, detection_ids: np.ndarray) -> np.ndarray:
+        """Give dead tracks whose gate holds a detection no live track took their id and state back;
+        age the rest.  Returns the detections still unmatched."""
+        dead = self._dead
+        if len(unmatched):
+            pairs, _, _ = match(dead["x"][:, :2], self._gates(dead["pp"]), detections.centres[unmatched])
+            if len(pairs):
+                g, k = pairs[:, 0], unmatched[pairs[:, 1]]
+                start = len(self.x)
+                for name in self._FIELDS:
+                    setattr(self, name, np.concatenate([getattr(self, name), dead[name][g]]))
+                rows = np.arange(start, len(self.x))
+                self.misses[rows] = 0
+                self.dark[rows] = 0
+                self.hits[rows] = 0  # back as new: its hole does not follow a velocity from before the gap
+                self._correct(rows, k, detections)
+                detection_ids[k] = self.ids[rows]
+                unmatched = np.setdiff1d(unmatched, k)
+                gone = np.zeros(len(dead["ids"]), bool)
+                gone[g] = True
+                dead = {name: value[~gone] for name, value in dead.items()}
+        dead["left"] = dead["left"] - 1
+        alive = dead["left"] > 0
+        self._dead = {name: value[alive] for name, value in dead.items()} if alive.any() else {}
+        return unmatched
 
     # ------------------------------------------------------------- holes
     def holes(self, at: float, *, uncertainty_sigma: float = 1.0, max_growth: float = 2.0) -> Detections:
