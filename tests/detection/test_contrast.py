@@ -186,6 +186,43 @@ def test_a_lone_pixel_needs_lone_k_noise_units():
     assert len(measure(components, excess, noise, lone_k=0.0, **kw)) == 3
 
 
+def test_a_weak_lone_pixel_is_kept_where_the_last_frame_was_bright():
+    from antiscatter.detection.contrast import measure
+
+    excess = np.zeros((60, 80), np.uint8)
+    excess[10, 10] = 9  # alone, 4.5 noise units: short of lone_k
+    noise = np.full((4, 5), 2.0, np.float32)
+    components = {"labels": np.array([0]), "x": np.array([10]), "y": np.array([10]), "count": 1}
+    kw = dict(halo=1.0, max_radius=48.0, split=False, frame_width=80, factor=1, lone_k=5.0)
+    seen = np.zeros((60, 80), np.uint8)
+    assert len(measure(components, excess, noise, seen=seen, **kw)) == 0
+    seen[9:12, 9:12] = 255  # the last frame had light here
+    assert len(measure(components, excess, noise, seen=seen, **kw)) == 1
+
+
+def test_a_faint_drifting_particle_persists_and_noise_does_not():
+    def run(radius, particle=True, seed=0):
+        rng = np.random.default_rng(seed)
+        # lone_k 20: a single working pixel is kept only by persistence
+        detector = make_detector("contrast", ContrastParams(persist_radius=radius, lone_k=20.0))
+        hits, counts = 0, []
+        for i in range(36):
+            frame = 40 + rng.normal(0, 2.0, (480, 640))
+            if particle:  # one working pixel (2x2, aligned), 8 noise units, 1 working pixel a frame
+                frame[200:202, 100 + 2 * i:102 + 2 * i] += 8
+            found = detector.detect(np.clip(np.rint(frame), 0, 255).astype(np.uint8))
+            if i >= 20:  # the background has been learnt
+                hits += int((np.hypot(found.centres[:, 0] - (100.5 + 2 * i), found.centres[:, 1] - 200.5) < 2).any())
+                counts.append(len(found))
+        return hits, sum(counts)
+    assert run(0)[0] == 0
+    assert run(2)[0] >= 14  # of 16 frames
+    # pure noise: lone spikes above the threshold seldom land where the last frame was bright
+    assert run(2, particle=False)[1] <= run(0, particle=False)[1] + 2
+    with pytest.raises(ValueError, match="persist_radius: got -1"):
+        ContrastParams(persist_radius=-1)
+
+
 def test_the_lamps_own_pattern_on_the_background_is_not_taken_for_particles():
     rng = np.random.default_rng(3)
     scene_bg = 60 + 30 * fractal_noise((320, 240), rng, octaves=3, base=4)
