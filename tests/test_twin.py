@@ -141,6 +141,16 @@ def test_twin_command_json(cli):
                for r in runs)
     bad = cli("twin", "--preset", "seed")
     assert bad.code == 2 and "the twin needs 3-D particles" in bad.err
+    bad = cli("twin", "--dim-level", "1.5")
+    assert bad.code == 2 and "--dim-level 1.5: allowed 0..1" in bad.err and "Traceback" not in bad.err
+
+
+def test_twin_dim_level_reaches_the_dim_and_pulsed_runs(cli):
+    result = cli("twin", "--frames", "3", "--size", "200x150", "--preset", "bubbles", "--json", "--dim-level", "0.3",
+                 "--baseline-m", "0")
+    assert result.code == 0, result.err
+    runs = json.loads(result.out)["runs"]
+    assert {r["dim_level"] for r in runs if r["strategy"] in ("dim", "pulse")} == {0.3}
 
 
 def test_curves_plot(tmp_path):

@@ -244,6 +244,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "shorter); the light a frame gathers scales with it")
     tw.add_argument("--flash-level", type=float, default=0.25, help="brightness of the detection flash in the "
                     "flash runs, 0..1 (default 0.25; with a fast projector a full 1.0 flash is short)")
+    tw.add_argument("--dim-level", type=float, default=0.1, help="light left in dim and pulsed holes, 0..1 "
+                    "(default 0.1, as run)")
     tw.add_argument("--projector-size", default="1280x800", metavar="WxH", help="projector size (default 1280x800)")
     tw.add_argument("--plot", metavar="FILE.png", help="also draw backscatter removed and scene light kept "
                     "against latency and against baseline")
@@ -617,8 +619,9 @@ def _twin(args: argparse.Namespace) -> int:
         raise UsageError(f"--latency-ms {args.latency_ms}: allowed >= 0")
     if args.plot:
         check_output_path(args.plot, "--plot")
-    if not 0 <= args.flash_level <= 1:
-        raise UsageError(f"--flash-level {args.flash_level}: allowed 0..1")
+    for key in ("flash_level", "dim_level"):
+        if not 0 <= getattr(args, key) <= 1:
+            raise UsageError(f"--{key.replace('_', '-')} {getattr(args, key)}: allowed 0..1")
     try:
         size = parse_size(args.size, key="--size")
         projector = parse_size(args.projector_size, key="--projector-size")
@@ -647,7 +650,7 @@ def _twin(args: argparse.Namespace) -> int:
                   "projector px")
     runs = []
     for run in default_runs(args.baseline_m):
-        run = dataclasses.replace(run, flash_level=args.flash_level)
+        run = dataclasses.replace(run, flash_level=args.flash_level, dim_level=args.dim_level)
         result = simulate_loop(run, geometry=geometry, preset=args.preset, frames=args.frames, seed=args.seed,
                                latency_ms=args.latency_ms, calibration=calibration)
         result.pop("series")
@@ -661,7 +664,7 @@ def _twin(args: argparse.Namespace) -> int:
         from .twin import plot_curves
 
         extra["curves"] = plot_curves(args.plot, geometry=geometry, preset=args.preset, frames=args.frames,
-                                      seed=args.seed)
+                                      seed=args.seed, dim_level=args.dim_level, flash_level=args.flash_level)
         if not args.json:
             print(f"wrote {args.plot}")
     if args.json:

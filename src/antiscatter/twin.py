@@ -381,7 +381,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
     return {"detector": "default" if run.detector == "contrast" else run.detector,
             "calibrated": run.detector is not None and run.mapping != "identity",
             "mapping": run.mapping if run.detector else "none", "predict": run.predict,
-            "strategy": run.strategy if run.detector else "none", "latency_ms": latency_ms,
+            "strategy": run.strategy if run.detector else "none", "dim_level": run.dim_level, "latency_ms": latency_ms,
             "baseline_m": geometry.baseline_m, "backscatter_removed": removed,
             "scene_light_kept": on_scene / scene_samples if scene_samples else 1.0, "frames": frames,
             "steady_from_frame": settle, "backscatter_removed_steady": removed_steady,
@@ -407,7 +407,8 @@ def default_runs(baseline_m: float) -> list[TwinRun]:
 
 def plot_curves(path: str, *, geometry: TwinGeometry, preset: str = "mixed", frames: int = 60, seed: int = 1,
                 latencies_ms: tuple[float, ...] = (0.0, 5.0, 10.0, 20.0, 40.0),
-                baselines_m: tuple[float, ...] = (0.0, 0.03, 0.06, 0.12, 0.2)) -> dict[str, Any]:
+                baselines_m: tuple[float, ...] = (0.0, 0.03, 0.06, 0.12, 0.2),
+                dim_level: float = 0.1, flash_level: float = 0.25) -> dict[str, Any]:
     """Backscatter removed and scene light kept against latency (at the geometry's baseline) and against
     baseline (at 5 ms), for the default detector with the calibrated mapping (and depth probing) and,
     beside them, the report's ``seed`` detector with the identity mapping; written as a PNG."""
@@ -421,6 +422,7 @@ def plot_curves(path: str, *, geometry: TwinGeometry, preset: str = "mixed", fra
             "pulse+predict": TwinRun("contrast", "calibrated", "pulse", True),
             "flash+predict": TwinRun("contrast", "calibrated", "flash", True),
             "probe+pulse+predict": TwinRun("contrast", "probe", "pulse", True)}
+    runs = {name: _replace(run, dim_level=dim_level, flash_level=flash_level) for name, run in runs.items()}
     curves: dict[str, Any] = {"latency_ms": list(latencies_ms), "baseline_m": list(baselines_m), "by_latency": {},
                               "by_baseline": {}}
     for name, run in runs.items():
