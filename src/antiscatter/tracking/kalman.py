@@ -137,8 +137,10 @@ class Tracker:
             return
         self.x, self.pp, self.pv, self.vv, self.rr = self._advance(self.x, self.pp, self.pv, self.vv, self.rr, dt)
 
-    def _advance(self, x, pp, pv, vv, rr, dt: float):
-        """State and covariance blocks carried ``dt`` seconds forward (new arrays)."""
+    def _advance(self, x: np.ndarray, pp: np.ndarray, pv: np.ndarray, vv: np.ndarray, rr: np.ndarray,
+                 dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """State (N, 5) and covariance blocks (N, 2) x 3 and (N,) carried ``dt`` seconds forward
+        (new arrays)."""
         q = self.accel_noise ** 2
         x = x.copy()
         x[:, 0:2] += x[:, 2:4] * dt
@@ -147,6 +149,7 @@ class Tracker:
                 vv + q * dt * dt, rr + self.radius_noise ** 2 * dt)
 
     def _gates(self, pp: np.ndarray) -> np.ndarray:
+        """(N,) association gate in pixels for position variances ``pp`` (N, 2)."""
         spread = np.sqrt(np.max(pp, axis=1) + self.measurement[0, 0]) if len(pp) else np.empty(0)
         return np.clip(self.gate_sigma * spread, self.min_gate, self.max_gate)
 
