@@ -186,8 +186,10 @@ def test_scoreboard_twin_table_has_every_run_at_both_baselines(monkeypatch):
     real = twin.simulate_loop
     monkeypatch.setattr(twin, "simulate_loop", lambda run, **kw: real(run, **{**kw, "geometry": TwinGeometry(
         camera_size=(160, 120), baseline_m=kw["geometry"].baseline_m)}))
-    rows = _twin_rows(2, lambda s: None)
+    rows = _twin_rows(2, lambda s: None, seeds=2)
     assert {r["baseline_m"] for r in rows} == {0.0, 0.12} and {r["latency_ms"] for r in rows} == {5.0, 10.0, 20.0}
+    low, high = (float(v) for v in rows[-1]["removed_range"].split("-"))
+    assert low <= rows[-1]["backscatter_removed"] <= high  # the mean of the two scenes lies in their range
     assert any(r["run"] == "full light" and r["backscatter_removed"] == 0 for r in rows)
     assert any(r["run"] == "default, range, flash, predict" for r in rows if r["baseline_m"] == 0.12)
 

@@ -173,6 +173,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--frames", type=int, help="at most N frames per scenario")
     ev.add_argument("--twin-frames", type=int, default=60, help="frames per closed-loop twin run for the "
                     "scoreboard's twin table (0 = leave it out; default 60)")
+    ev.add_argument("--twin-seeds", type=int, default=3, help="scenes (seeds 1..N) the twin table averages "
+                    "over (default 3)")
     ev.add_argument("--bench-frames", type=int, default=100, help="frames per size for the scoreboard's "
                     "bench table (0 = leave it out; default 100)")
     ev.add_argument("--detector", default=None, help="detector to run (default: the default detector); "
@@ -347,16 +349,18 @@ def _evaluate(args: argparse.Namespace) -> int:
             raise UsageError(f"--data {data_dir}: no such folder")
         real = msrb_pairs(data_dir / "msrb") if (data_dir / "msrb").is_dir() else []
         detectors = [args.detector] if args.detector else list(DETECTORS)
+        if args.twin_frames < 0:
+            raise UsageError(f"--twin-frames {args.twin_frames}: allowed >= 0 (0 leaves the table out)")
+        if args.twin_seeds < 1:
+            raise UsageError(f"--twin-seeds {args.twin_seeds}: allowed >= 1")
         bench_result = None
         if args.bench_frames:
             from .bench import bench
             bench_result = bench(detectors=detectors, frames=args.bench_frames)
-        if args.twin_frames < 0:
-            raise UsageError(f"--twin-frames {args.twin_frames}: allowed >= 0 (0 leaves the table out)")
         markdown, data = scoreboard(scenarios=scenarios, catalogue_version=version, detectors=detectors,
                                     real_pairs=real, matching=m, bench_result=bench_result,
                                     frames_limit=args.frames, log=lambda t: print(t, file=sys.stderr),
-                                    twin_frames=args.twin_frames)
+                                    twin_frames=args.twin_frames, twin_seeds=args.twin_seeds)
         report = Path(args.report)
         report.parent.mkdir(parents=True, exist_ok=True)
         report.write_text(markdown)

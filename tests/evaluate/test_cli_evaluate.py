@@ -165,3 +165,6 @@ def test_scoreboard_end_to_end_on_a_tiny_catalogue(tmp_path, cli):
     assert "## Latency" in text
     assert "## Tracking" in text and "| tinybubbles |" in text.split("## Tracking")[1]
     assert "## Closed loop" not in text
+    bad = cli("evaluate", "--catalogue", "--catalogue-file", str(catalogue), "--data", str(tmp_path / "data"),
+              "--report", str(report), "--bench-frames", "0", "--twin-seeds", "0")
+    assert bad.code == 2 and "--twin-seeds 0: allowed >= 1" in bad.err

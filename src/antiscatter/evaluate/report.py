@@ -111,11 +111,12 @@ def _table(rows: list[dict[str, Any]], columns: list[tuple[str, str, str]]) -> l
 def scoreboard(*, scenarios: dict[str, Any], catalogue_version: int, detectors: list[str],
                real_pairs: list[tuple[str, Path, Path]], matching: Any, bench_result: Any | None,
                frames_limit: int | None = None, log: Callable[[str], None] = lambda s: None,
-               tracking: bool = True, twin_frames: int = 0) -> tuple[str, dict]:
+               tracking: bool = True, twin_frames: int = 0, twin_seeds: int = 3) -> tuple[str, dict]:
     """Run every detector on every scenario and real pair; return (markdown, data).
 
     tracking: also the tracker's figures (default detector) on every scenario;
-    twin_frames: also the closed-loop twin's table (0 = leave it out).
+    twin_frames: also the closed-loop twin's table (0 = leave it out), each figure the mean over
+    ``twin_seeds`` scenes (seeds 1..twin_seeds) with the range of backscatter removed.
     """
     from .runs import evaluate_pairs, evaluate_scenario
 
@@ -181,19 +182,22 @@ def scoreboard(*, scenarios: dict[str, Any], catalogue_version: int, detectors: 
 
         md += ["", "## Closed loop (`antiscatter twin`)", "",
                f"Preset mixed, 800x600 camera at 60 Hz (4 ms exposure), 1280x800 projector at 120 Hz, "
-               f"{twin_frames} frames per run. Removed = backscatter withheld from particles, kept = scene "
-               "light left on (1 = full lamp), over the whole run and, \"steady\", from frame "
+               f"{twin_frames} frames per run, each figure the mean over {twin_seeds} scenes (seeds "
+               f"1-{twin_seeds}; \"range\": the lowest and highest removed among them). Removed = backscatter "
+               "withheld from particles (each weighted by the light it sends back: brightness times image "
+               "area), kept = scene light left on (1 = full lamp), over the whole run and, \"steady\", from frame "
                f"{min(SETTLE_FRAMES, twin_frames // 2)} on (after the detector's warm-up and the first "
                "tracks' confirmation). Holes drawn with the twin's exact geometry at the working "
                "depth (\"calibrated\"), stretched over each particle's disparity range (\"range\"), or "
                "at each track's depth found by bisection under dim or pulsed holes (\"probe\"). With a mapping other "
                "than identity the detector is told the light its exposure got (compensation).", ""]
-        rows = _twin_rows(twin_frames, log)
+        rows = _twin_rows(twin_frames, log, seeds=twin_seeds)
         md += _table(rows, [("baseline_m", "baseline (m)", "{:g}"), ("latency_ms", "latency (ms)", "{:g}"),
                             ("run", "system", ""), ("backscatter_removed", "removed", "{:.3f}"),
                             ("scene_light_kept", "kept", "{:.3f}"),
                             ("backscatter_removed_steady", "removed, steady", "{:.3f}"),
-                            ("scene_light_kept_steady", "kept, steady", "{:.3f}")])
+                            ("scene_light_kept_steady", "kept, steady", "{:.3f}"),
+                            ("removed_range", "removed, range", "")])
         data["twin"] = rows
     return "\n".join(md) + "\n", data
 
@@ -218,22 +222,23 @@ def _tracking_rows(scenarios: dict[str, Any], matching: Any, frames_limit: int |
     return rows
 
 
-def _twin_rows(frames: int, log: Callable[[str], None]) -> list[dict[str, Any]]:
+def _twin_rows(frames: int, log: Callable[[str], None], *, seeds: int = 3) -> list[dict[str, Any]]:
     from ..twin import TwinGeometry, default_runs, simulate_loop
 
+    keys = ("backscatter_removed", "scene_light_kept", "backscatter_removed_steady", "scene_light_kept_steady")
     rows = []
     for baseline in (0.0, 0.12):
         for latency in (5.0, 10.0, 20.0):
             log(f"twin: baseline {baseline} m, latency {latency} ms")
             for run in default_runs(baseline):
-                out = simulate_loop(run, geometry=TwinGeometry(baseline_m=baseline), frames=frames,
-                                    latency_ms=latency)
+                outs = [simulate_loop(run, geometry=TwinGeometry(baseline_m=baseline), frames=frames,
+                                      latency_ms=latency, seed=seed) for seed in range(1, seeds + 1)]
+                out = outs[0]
                 name = ("full light" if run.detector is None else
                         f"{out['detector']}, {out['mapping']}, {out['strategy']}"
                         + (", predict" if out["predict"] else ""))
+                removed = [o["backscatter_removed"] for o in outs]
                 rows.append({"baseline_m": baseline, "latency_ms": latency, "run": name,
-                             "backscatter_removed": out["backscatter_removed"],
-                             "scene_light_kept": out["scene_light_kept"],
-                             "backscatter_removed_steady": out["backscatter_removed_steady"],
-                             "scene_light_kept_steady": out["scene_light_kept_steady"]})
+                             **{key: float(np.mean([o[key] for o in outs])) for key in keys},
+                             "removed_range": f"{min(removed):.3f}-{max(removed):.3f}"})
     return rows
