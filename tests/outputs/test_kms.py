@@ -117,6 +117,25 @@ def test_double_buffered_flips_with_exact_pixels_and_flip_times():
     assert (out.buffers[out.front].pixels()[..., :3] == 0).all()  # lamp off at the end
 
 
+def test_restore_puts_the_pattern_back_only_when_the_display_can_take_it_now():
+    out = KmsOutput(pykms=fake_pykms())
+    card = out.card
+    pattern = np.full((H, W), 90, np.uint8)
+    out.show(pattern)
+    out.flash(np.full((H, W), 255, np.uint8))
+    commits = len(card.commits)
+    out.restore(pattern)  # the flash's flip has completed (the fake completes at once)
+    assert len(card.commits) == commits + 1 and out.buffers[out.front].pixels()[0, 0, 0] == 90
+    out.flash(np.full((H, W), 255, np.uint8))
+    card.read_events()  # as if the flip were still under way: no event to be read yet
+    out.pending = True
+    commits = len(card.commits)
+    out.restore(pattern)  # no waiting: the flash stays on
+    assert len(card.commits) == commits and out.pending
+    out.pending = False
+    out.close()
+
+
 def test_pattern_scaled_to_the_display_mode():
     out = KmsOutput(pykms=fake_pykms())
     out.show(np.array([[255, 0], [0, 255]], np.uint8))

@@ -88,17 +88,28 @@ class KmsOutput(LightOutput):
         if request.commit_sync(allow_modeset=True) != 0:
             raise UsageError("output 'kms': the display refused the mode set (permission? another master?)")
 
-    def _wait_flip(self) -> None:
-        """Block until the pending flip completes (its time is when the last pattern went out)."""
+    def _wait_flip(self, timeout: float | None = None) -> None:
+        """Block until the pending flip completes (its time is when the last pattern went out);
+        with ``timeout`` (seconds), give up after it and leave ``pending`` set."""
         while self.pending:
-            ready, _, _ = select.select([self.card.fd], [], [], self.timeout)
+            ready, _, _ = select.select([self.card.fd], [], [], self.timeout if timeout is None else timeout)
             if not ready:
+                if timeout is not None:
+                    return
                 raise RuntimeError(f"output 'kms': no flip completed within {self.timeout} s")
             for event in self.card.read_events():
                 if event.type == self.kms.DrmEventType.FLIP_COMPLETE:
                     self.presented_ns = int(event.time * 1e9)
                     self.flips += 1
                     self.pending = False
+
+    def restore(self, pattern: np.ndarray) -> None:
+        """The exposure is over: the last pattern back -- if the display can take it now.  While the
+        flash's (or pulse's) flip is still pending, a new flip would have to wait for it, and so
+        would the next pattern after it (up to a refresh more latency): the flash stays on then."""
+        self._wait_flip(timeout=0.0)
+        if not self.pending:
+            self.show(pattern)
 
     def show(self, pattern: np.ndarray, frame: Frame | None = None,
              detections: Detections | None = None) -> None:
