@@ -186,6 +186,33 @@ def test_a_lone_pixel_needs_lone_k_noise_units():
     assert len(measure(components, excess, noise, lone_k=0.0, **kw)) == 3
 
 
+def test_a_new_scene_starts_the_background_again():
+    rng = np.random.default_rng(9)
+
+    def frames(ground, count, particle):
+        out = []
+        for i in range(count):
+            frame = cv2.cvtColor(np.clip(ground + rng.normal(0, 2.0, ground.shape), 0, 255).astype(np.uint8),
+                                 cv2.COLOR_GRAY2BGR)
+            cv2.circle(frame, particle(i), 5, (255, 255, 255), -1)
+            out.append(frame)
+        return out
+    ground = 30 + 50 * fractal_noise((640, 480), rng, octaves=4, base=4)
+    first = frames(ground, 25, lambda i: (100 + 3 * i, 200))  # a particle drifting over the same ground
+    other = 90 + 60 * fractal_noise((640, 480), rng, octaves=4, base=4)  # the camera turned: other ground
+    after = frames(other, 3, lambda i: (300, 300 + 2 * i))
+    detector, fresh = make_detector("contrast"), make_detector("contrast")
+    model = detector.reset.__self__  # the detector's background model
+    for frame in first:
+        detector.detect(frame)
+    assert model.learnt()  # a particle drifting over the same ground: the model went on learning
+    for frame in after:  # as if it had never seen the first scene
+        a, b = detector.detect(frame), fresh.detect(frame)
+        assert not model.learnt()  # started again
+        np.testing.assert_allclose(a.centres, b.centres)
+        assert len(a) and (np.hypot(a.centres[:, 0] - 300, a.centres[:, 1] - 300) < 5).any()
+
+
 def test_a_weak_lone_pixel_is_kept_where_the_last_frame_was_bright():
     from antiscatter.detection.contrast import measure
 

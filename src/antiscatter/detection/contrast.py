@@ -148,8 +148,9 @@ def spatial_background(half: np.ndarray, *, cell: int) -> np.ndarray:
 class BackgroundModel:
     """Per-pixel background and sensor noise, learnt over ``memory`` frames in horizontal bands.
 
-    The first frame (and any frame of another size) starts from the spatial
-    background and measures the noise everywhere.  After that, each frame
+    The first frame (and any frame of another size, or of a new scene: see
+    :meth:`new_scene`) starts from the spatial background and measures the noise
+    everywhere.  After that, each frame
     updates one of ``bands`` horizontal bands -- background, noise and the
     threshold map there -- at ``bands`` times the per-frame rate, so every frame
     costs the same and a fraction of a full update; ``memory=0`` keeps the
@@ -192,7 +193,9 @@ class BackgroundModel:
         return c0 * height // cells, c1 * height // cells, c0, c1
 
     def estimate(self, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(base, limit) for this frame, both uint8 (h, w)."""
+        """(base, limit) for this frame, both uint8 (h, w).  A new scene starts the model again."""
+        if self.background is not None and self.background.shape == half.shape and self.new_scene(half):
+            self.reset()
         if self.alpha == 0.0 or self.background is None or self.background.shape != half.shape:
             self.background = spatial_background(half, cell=self.cell)
             self.base = cv2.convertScaleAbs(self.background)  # rounded, saturated uint8 (background >= 0)
@@ -234,6 +237,17 @@ class BackgroundModel:
         limit = cv2.resize(np.maximum(self.k * self.noise, np.float32(self.min_contrast)), (w, h),
                            interpolation=cv2.INTER_LINEAR)
         self.limit = cv2.convertScaleAbs(limit, beta=-0.4999)  # floor, saturated at 255
+
+    def new_scene(self, half: np.ndarray) -> bool:
+        """True when more than ``NEW_SCENE`` of the frame (every 4th row) differs from the background by
+        more than the limit, either way: the camera turned to another scene, the light changed.
+        Particles cover a few per cent (the dense preset 7 %); after a cut it is over 90 %."""
+        rows = slice(None, None, 4)
+        changed = cv2.compare(cv2.absdiff(half[rows], self.base[rows]), self.limit[rows], cv2.CMP_GT)
+        return cv2.countNonZero(changed) > self.NEW_SCENE * changed.size
+
+    #: share of the frame that must differ from the background for a new scene
+    NEW_SCENE = 0.3
 
     def learnt(self) -> bool:
         """True once the warm-up is over: static scene has been told apart from particles."""
