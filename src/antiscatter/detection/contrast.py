@@ -150,7 +150,8 @@ class BackgroundModel:
 
     The first frame (and any frame of another size, or of a new scene: see
     :meth:`new_scene`) starts from the spatial background and measures the noise
-    everywhere.  After that, each frame
+    everywhere; when the view pans, the learnt background moves with it
+    (:meth:`follow`).  After that, each frame
     updates one of ``bands`` horizontal bands -- background, noise and the
     threshold map there -- at ``bands`` times the per-frame rate, so every frame
     costs the same and a fraction of a full update; ``memory=0`` keeps the
@@ -185,6 +186,7 @@ class BackgroundModel:
         self._updates = np.zeros(max(self.bands, 1), np.int64)
         self._next = 0
         self._frames = 0
+        self._profiles = None  # the background's brightness profiles (follow)
 
     def _rows(self, band: int, height: int) -> tuple[int, int, int, int]:
         """Pixel rows [r0, r1) and coarse-cell rows [c0, c1) of ``band``: bands hold whole cell rows."""
@@ -193,9 +195,13 @@ class BackgroundModel:
         return c0 * height // cells, c1 * height // cells, c0, c1
 
     def estimate(self, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(base, limit) for this frame, both uint8 (h, w).  A new scene starts the model again."""
-        if self.background is not None and self.background.shape == half.shape and self.new_scene(half):
-            self.reset()
+        """(base, limit) for this frame, both uint8 (h, w).  The learnt background follows the view
+        when it pans; a new scene starts the model again."""
+        if self.background is not None and self.background.shape == half.shape:
+            if self.alpha > 0.0:
+                self.follow(half)
+            if self.new_scene(half):
+                self.reset()
         if self.alpha == 0.0 or self.background is None or self.background.shape != half.shape:
             self.background = spatial_background(half, cell=self.cell)
             self.base = cv2.convertScaleAbs(self.background)  # rounded, saturated uint8 (background >= 0)
@@ -205,6 +211,7 @@ class BackgroundModel:
                 self._measure_noise(half, band)
             self._update_limit(half.shape)
             self._previous = self._persist = None
+            self._profiles = None
             self._updates[:] = 0
             self._next = 0
         return self.base, self.limit
@@ -237,6 +244,47 @@ class BackgroundModel:
         limit = cv2.resize(np.maximum(self.k * self.noise, np.float32(self.min_contrast)), (w, h),
                            interpolation=cv2.INTER_LINEAR)
         self.limit = cv2.convertScaleAbs(limit, beta=-0.4999)  # floor, saturated at 255
+
+    def follow(self, half: np.ndarray) -> tuple[int, int]:
+        """Move the learnt background with the view, in whole working pixels: the shift between it
+        and this frame, from their column and row brightness profiles (high-passed, so the lamp's
+        cone does not count) after an opening at half resolution that takes out particles (small
+        bright blobs) and keeps the ground's texture.  A plain view (open water) has no texture to
+        go by and is left alone.  The background's profiles are renewed every ``bands`` frames (one
+        learning cycle) and after each move.  Returns the move (dx, dy)."""
+        sub = (slice(None, None, 2), slice(None, None, 2))
+        if self._profiles is None or self._profiled >= self.bands:
+            base = cv2.morphologyEx(self.base[sub], cv2.MORPH_OPEN, _K3)
+            self._profiles = [cv2.reduce(base, axis, cv2.REDUCE_AVG, dtype=cv2.CV_32F).ravel() for axis in (0, 1)]
+            self._profiled = 0
+        self._profiled += 1
+        frame = cv2.morphologyEx(half[sub], cv2.MORPH_OPEN, _K3)
+        shifts = []
+        for axis in (0, 1):  # 0: column profile -> x shift; 1: row profile -> y shift
+            profile = cv2.reduce(frame, axis, cv2.REDUCE_AVG, dtype=cv2.CV_32F).ravel()
+            shift = _profile_shift(self._profiles[axis], profile, MAX_FOLLOW // 2)
+            if shift is None:
+                return 0, 0
+            shifts.append(2 * shift)
+        dx, dy = (int(round(v)) for v in shifts)
+        if dx == 0 and dy == 0:
+            return 0, 0
+        h, w = half.shape
+        m = np.float32([[1, 0, dx], [0, 1, dy]])
+
+        def move(image: np.ndarray) -> np.ndarray:
+            return cv2.warpAffine(image, m, (w, h), flags=cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+        self.background = move(self.background)  # the strip that came into view: its edge, repeated
+        self.base = move(self.base)
+        self._profiles = None
+        if self._previous is not None:
+            self._previous = move(self._previous)
+        if self._persist is not None:
+            self._persist = move(self._persist)
+        return dx, dy
+
+    _profiles: list | None = None
+    _profiled = 0
 
     def new_scene(self, half: np.ndarray) -> bool:
         """True when more than ``NEW_SCENE`` of the frame (every 4th row) differs from the background by
@@ -689,6 +737,42 @@ def build_contrast(params: ContrastParams) -> Detector:
 
 #: below this share of the lamp's light a pixel's brightness says too little about the scene to learn from
 UNLIT = 0.1
+
+
+#: largest view shift between two frames that the background follows (working pixels)
+MAX_FOLLOW = 16
+_K3 = np.ones((3, 3), np.uint8)
+
+
+def _profile_shift(reference: np.ndarray, profile: np.ndarray, max_shift: int) -> float | None:
+    """Shift (samples, sub-sample) that best lays ``reference`` onto ``profile`` (1-D float32, same
+    length), within +-max_shift; None when their high-passed correlation there is below 0.8 (no
+    texture to go by, or the view changed more than it moved)."""
+    n = len(profile)
+    if n < 4 * max_shift:
+        return None
+    both = np.stack([reference, profile]).astype(np.float32)
+    # high-pass: minus a 15-sample running mean, so the lamp's cone does not count
+    both -= cv2.blur(both, (15, 1), borderType=cv2.BORDER_REPLICATE)
+    r, p = both
+    if r.std() < 0.2 or p.std() < 0.2:  # a plain view (open water): nothing to follow
+        return None
+    m = n - 2 * max_shift
+    pc = p[max_shift:n - max_shift] - p[max_shift:n - max_shift].mean()
+    # the reference's windows for shifts -max..max (window i starts at 2 max - i)
+    windows = np.lib.stride_tricks.sliding_window_view(r, m)[::-1]
+    windows = windows - windows.mean(axis=1, keepdims=True)
+    scores = (windows @ pc) / (np.linalg.norm(windows, axis=1) * np.linalg.norm(pc) + 1e-9)
+    best = int(np.argmax(scores))
+    if scores[best] < 0.8:
+        return None
+    offset = 0.0
+    if 0 < best < len(scores) - 1:  # parabola through the peak and its neighbours
+        a, b, c = scores[best - 1], scores[best], scores[best + 1]
+        denominator = a - 2 * b + c
+        if denominator < 0:
+            offset = 0.5 * (a - c) / denominator
+    return float(best - max_shift + offset)
 
 
 def _disc(radius: int) -> np.ndarray:
