@@ -213,23 +213,31 @@ def test_a_new_scene_starts_the_background_again():
         assert len(a) and (np.hypot(a.centres[:, 0] - 300, a.centres[:, 1] - 300) < 5).any()
 
 
-def test_the_background_follows_the_view_when_it_pans():
+def pan(detector, frames=30):
+    """A particle scene over textured ground, the view sliding 2 px a frame (the vehicle moves);
+    returns the last frame's detections and the particles' places in it."""
     rng = np.random.default_rng(1)
     ground = 40 + 50 * fractal_noise((1100, 600), rng, octaves=4, base=4)  # wider than the view
-    detector = make_detector("contrast")
     particles = [(60 + 70 * k, 80 + (37 * k) % 320) for k in range(8)]
-    for i in range(30):  # the vehicle moves: the view slides 2 px a frame over the ground
+    for i in range(frames):
         view = ground[60:540, 2 * i:2 * i + 640]
         frame = np.clip(view + rng.normal(0, 2.0, view.shape), 0, 255).astype(np.uint8)
         for x, y in particles:
             cv2.circle(frame, (x, y + i), 3, 230, -1)
         found = detector.detect(cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR))
+    return found, [(x, y + frames - 1) for x, y in particles]
+
+
+def test_the_background_follows_the_view_when_it_pans():
+    found, particles = pan(make_detector("contrast"))
     # learnt ground stays ground: the particles and hardly anything else (without following: ~1000);
     # the strip that has just come into view at the right has no learnt background yet
     inside = found.centres[:, 0] < 600
     assert inside.sum() <= len(particles) + 2 and (~inside).sum() <= 40
     for x, y in particles:
-        assert (np.hypot(found.centres[:, 0] - x, found.centres[:, 1] - (y + 29)) < 3).any()
+        assert (np.hypot(found.centres[:, 0] - x, found.centres[:, 1] - y) < 3).any()
+    still, _ = pan(make_detector("contrast", ContrastParams(follow=False)))  # a rig that holds still
+    assert len(still) > 10 * len(found)  # the moving ground is taken for particles
 
 
 def test_profile_shift_finds_a_known_move_and_leaves_a_plain_view_alone():
