@@ -760,14 +760,13 @@ def _profile_shift(reference: np.ndarray, profile: np.ndarray, max_shift: int) -
     # high-pass: minus a 15-sample running mean, so the lamp's cone does not count
     both -= cv2.blur(both, (15, 1), borderType=cv2.BORDER_REPLICATE)
     r, p = both
-    if r.std() < 0.2 or p.std() < 0.2:  # a plain view (open water): nothing to follow
+    spread = cv2.meanStdDev(both[0])[1][0, 0], cv2.meanStdDev(both[1])[1][0, 0]
+    if min(spread) < 0.2:  # a plain view (open water): nothing to follow
         return None
-    m = n - 2 * max_shift
-    pc = p[max_shift:n - max_shift] - p[max_shift:n - max_shift].mean()
-    # the reference's windows for shifts -max..max (window i starts at 2 max - i)
-    windows = np.lib.stride_tricks.sliding_window_view(r, m)[::-1]
-    windows = windows - windows.mean(axis=1, keepdims=True)
-    scores = (windows @ pc) / (np.linalg.norm(windows, axis=1) * np.linalg.norm(pc) + 1e-9)
+    # normalised correlation of the profile's middle with every window of the reference (OpenCV, one
+    # call); the window starting at j stands for the shift max_shift - j: reversed, index i <-> i - max
+    middle = p[max_shift:n - max_shift].reshape(1, -1)
+    scores = cv2.matchTemplate(r.reshape(1, -1), middle, cv2.TM_CCOEFF_NORMED).ravel()[::-1]
     best = int(np.argmax(scores))
     if scores[best] < 0.8:
         return None
