@@ -76,7 +76,7 @@ class ContrastParams:
         last frame was bright (4 spikes a frame in 120k pixels: 1 in 1000 within 2 px).  Only once
         the background has been learnt (static texture persists too).  0 = off (default 2).
     follow: move the learnt background with the view when the camera pans (default true: a
-        vehicle moves; ~150 us a frame at 800x600 -- false for a camera that holds still).
+        vehicle moves; ~80 us a frame at 800x600 -- false for a camera that holds still).
     """
 
     k: float = 4.0
