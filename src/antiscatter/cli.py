@@ -85,7 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "single; best with the camera triggered by the projector); flash: a uniform --flash-level frame before each "
                         "capture, the pattern the rest of the time (mode single); coast: tracked holes stay on "
                         "particles that went dark (turns --track on)")
-    g.add_argument("--dim-level", type=float, help="light left in dim holes, 0..1 (default 0.1)")
+    g.add_argument("--dim-level", type=float, help="light left in dim holes (pulse: while the camera exposes), 0..1 (default 0.1)")
     g.add_argument("--flash-level", type=float, help="brightness of the detection flash, 0..1 (default 0.25)")
     g.add_argument("--depth", choices=("auto", "fixed", "probe"), help="auto (default): probe where it can "
                    "run, else fixed; fixed: holes at the calibration's working distance; probe: each particle's depth found by bisection along its epipolar "

@@ -167,13 +167,11 @@ class DepthProbe:
         if len(holes) == 0:
             return out
         ids = holes.track_ids.tolist()
-        lo = np.array([probes.get(t, (self.w_far, self.w_near))[0] for t in ids])
-        hi = np.array([probes.get(t, (self.w_far, self.w_near))[1] for t in ids])
-        far = _apply(self._h_far, holes.centres)
+        lo, hi = np.array([probes.get(t, (self.w_far, self.w_near)) for t in ids], np.float64).T
+        far, radii = map_to_projector(holes, self._h_far)
         near = _apply(self._h_near, holes.centres)
         a = far + _t(lo, self)[:, None] * (near - far)
         b = far + _t(hi, self)[:, None] * (near - far)
-        _, radii = map_to_projector(holes, self._h_far)
         thickness = np.maximum(1, np.rint(2 * (radii + margin))).astype(int)
         # a probe is a part of its track's interval that the next exposure judges; a whole interval
         # (settled, or kept dark between pulses) only has to cover the particle, caps and all
@@ -196,7 +194,5 @@ def _t(w: np.ndarray, probe: DepthProbe) -> np.ndarray:
 
 def _apply(h: np.ndarray, points: np.ndarray) -> np.ndarray:
     """(N, 2) points through the homography ``h``."""
-    p = np.asarray(points, np.float64).reshape(-1, 2)
-    w = h[2, 0] * p[:, 0] + h[2, 1] * p[:, 1] + h[2, 2]
-    return np.column_stack([(h[0, 0] * p[:, 0] + h[0, 1] * p[:, 1] + h[0, 2]) / w,
-                            (h[1, 0] * p[:, 0] + h[1, 1] * p[:, 1] + h[1, 2]) / w])
+    p = np.asarray(points, np.float64).reshape(-1, 1, 2)
+    return cv2.perspectiveTransform(p, np.asarray(h, np.float64)).reshape(-1, 2)

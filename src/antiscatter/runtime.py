@@ -334,6 +334,7 @@ class _Pipeline:
         self.full_image = np.full((height, width), 255, np.uint8)
         self.last_pattern: np.ndarray | None = None  # the pattern the lamp shows between exposures
         self.pulse_image: np.ndarray | None = None  # the last pattern, lifted (pulse)
+        self._lifted: np.ndarray | None = None  # the buffer pulse_image is lifted into
         self.exposure_buffer = (np.empty((height, width), np.uint8)  # pulse with probing: the probe halves
                                 if self.probe is not None and self.pulse_level is not None else None)
         # the light the next exposure gets, in camera pixels at half size (the detector's working scale)
@@ -466,18 +467,15 @@ class _Pipeline:
         self.unlit_ids = rec.hole_ids if self.light_on and self.flash_image is None else None
         exposed = shown
         if self.exposing:
-            # the pattern outlives its buffer (the ring reuses it): keep a copy to restore after captures
-            if self.last_pattern is None or self.last_pattern.shape != shown.shape:
-                self.last_pattern = np.empty_like(shown)
-            np.copyto(self.last_pattern, shown)
+            # flash and pulse run in mode single: the next capture, and the restore after it, come
+            # before the next pattern is drawn, so these buffers are still intact then (no copies)
+            self.last_pattern = shown
             if self.pulse_level is not None:
                 if rec.exposure is not None and self.light_on:  # probing: the halves, drawn lifted
-                    if self.pulse_image is None:
-                        self.pulse_image = np.empty_like(rec.exposure)
-                    np.copyto(self.pulse_image, rec.exposure)
-                    exposed = self.pulse_image
+                    self.pulse_image = exposed = rec.exposure
                 else:
-                    self.pulse_image = exposed = np.maximum(shown, np.uint8(self.pulse_level), out=self.pulse_image)
+                    self.pulse_image = exposed = np.maximum(shown, np.uint8(self.pulse_level), out=self._lifted)
+                    self._lifted = self.pulse_image
         if self.compensate:  # what the next exposure will be lit by: this pattern on the scene
             self.detector.set_light(None if not self.light_on else cv2.warpPerspective(
                 exposed, self.camera_from_projector, self.light_size, flags=cv2.INTER_LINEAR,

@@ -71,8 +71,8 @@ class _Probing:
     """A queued pattern of the ``probe`` mapping: tracks frozen at one update, and each one's interval."""
 
     prediction: Prediction
-    probes: dict
-    intervals: dict  # each track's whole remaining interval (pulse: dark between exposures)
+    probes: dict  # shown while the camera exposes
+    between: dict  # shown between exposures: the probes (dim), each whole interval (pulse)
 
 __all__ = ["TwinGeometry", "TwinRun", "simulate_loop", "default_runs", "backscatter_weight", "STRATEGIES", "MAPPINGS"]
 
@@ -282,7 +282,8 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                 probe.observe(seen, shown_probes, tracks.ids[tracks.confirmed & (tracks.misses > 0)])
                 probe.forget(tracks.ids)
                 snapshot = tracker.snapshot()
-                return on_at, _Probing(snapshot, probe.probes(snapshot.holes(t0)), probe.intervals())
+                probes = probe.probes(snapshot.holes(t0))
+                return on_at, _Probing(snapshot, probes, probe.intervals() if run.strategy == "pulse" else probes)
             if run.predict and run.per_refresh:
                 return on_at, tracker.snapshot()
             holes = tracker.holes(on_at + sub_s / 2 if run.predict else t0 + geometry.exposure_s / 2)
@@ -325,8 +326,8 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                 at = ts + sub_s / 2 if run.predict else displayed.prediction.timestamp
                 # pulse: only the exposure's refresh needs the probe's half; the others keep the
                 # whole interval that may hold the particle dark
-                probes = displayed.intervals if run.strategy == "pulse" and j else displayed.probes
-                shown = _holes_pattern(displayed.prediction.holes(at), run, probes=probes, **drawn)
+                shown = _holes_pattern(displayed.prediction.holes(at), run,
+                                       probes=displayed.between if j else displayed.probes, **drawn)
             elif isinstance(displayed, _Fixed):
                 shown = displayed.light
             else:

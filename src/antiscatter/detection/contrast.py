@@ -190,7 +190,8 @@ class BackgroundModel:
         self._updates = np.zeros(max(self.bands, 1), np.int64)
         self._next = 0
         self._frames = 0
-        self._profiles = None  # the background's brightness profiles (follow)
+        self._profiles: list | None = None  # the background's brightness profiles (follow)
+        self._profiled = 0  # frames since they were taken
 
     def _rows(self, band: int, height: int) -> tuple[int, int, int, int]:
         """Pixel rows [r0, r1) and coarse-cell rows [c0, c1) of ``band``: bands hold whole cell rows."""
@@ -286,9 +287,6 @@ class BackgroundModel:
         if self._persist is not None:
             self._persist = move(self._persist)
         return dx, dy
-
-    _profiles: list | None = None
-    _profiled = 0
 
     def new_scene(self, half: np.ndarray) -> bool:
         """True when more than ``NEW_SCENE`` of the frame (every 4th row) differs from the background by
@@ -669,6 +667,7 @@ def build_contrast(params: ContrastParams) -> Detector:
     model = BackgroundModel(cell=params.cell, memory=params.memory, k=params.k, min_contrast=params.min_contrast,
                             follow=params.follow)
     state: dict[str, Any] = {"factor": 2, "width": 800}
+    persist_kernel = _disc(params.persist_radius) if params.persist_radius else None
 
     def stage_downsample(image: np.ndarray) -> np.ndarray:
         factor = working_factor(image.shape[1], params.factor)
@@ -720,8 +719,8 @@ def build_contrast(params: ContrastParams) -> Detector:
         found = measure(components, excess, model.noise, halo=params.halo, max_radius=params.max_radius,
                         split=params.split, frame_width=state["width"], factor=state["factor"],
                         lone_k=params.lone_k, seen=seen)
-        if params.persist_radius:
-            state["seen"] = cv2.dilate(mask, _disc(params.persist_radius))
+        if persist_kernel is not None:
+            state["seen"] = cv2.dilate(mask, persist_kernel)
         return reflectance, mask, found
 
     def stage_update(value) -> Detections:
@@ -760,8 +759,7 @@ def _profile_shift(reference: np.ndarray, profile: np.ndarray, max_shift: int) -
     # high-pass: minus a 15-sample running mean, so the lamp's cone does not count
     both -= cv2.blur(both, (15, 1), borderType=cv2.BORDER_REPLICATE)
     r, p = both
-    spread = cv2.meanStdDev(both[0])[1][0, 0], cv2.meanStdDev(both[1])[1][0, 0]
-    if min(spread) < 0.2:  # a plain view (open water): nothing to follow
+    if min(cv2.meanStdDev(v)[1][0, 0] for v in (r, p)) < 0.2:  # a plain view (open water): nothing to follow
         return None
     # normalised correlation of the profile's middle with every window of the reference (OpenCV, one
     # call); the window starting at j stands for the shift max_shift - j: reversed, index i <-> i - max
@@ -793,7 +791,7 @@ def _near(shape: tuple[int, int], expected: Detections, factor: int) -> np.ndarr
     inside = (x >= 0) & (x < w) & (y >= 0) & (y < h)
     near[y[inside], x[inside]] = 255
     radius = int(np.clip(np.ceil(np.median(expected.radii) / factor + 1), 1, 8))
-    return cv2.dilate(near, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1)))
+    return cv2.dilate(near, _disc(radius))
 
 
 def _working_light(light: np.ndarray | None, shape: tuple[int, int], factor: int) -> np.ndarray | None:
