@@ -259,15 +259,15 @@ def _disc_frames(tmp_path, count=4):
     return frames
 
 
-@pytest.mark.parametrize("revive, identities", [(0, 2), (5, 1)])
-def test_track_revive_frames_gives_a_particle_back_its_id_after_a_gap(tmp_path, cli, revive, identities):
+@pytest.mark.parametrize("revive, keep, identities", [(0, 1, 2), (5, 1, 1), (0, 4, 1)])
+def test_track_revive_frames_or_keep_misses_give_a_particle_back_its_id_after_a_gap(tmp_path, cli, revive, keep, identities):
     frames = tmp_path / "frames"
     frames.mkdir()
     for i in range(12):  # a disc moving right, unseen in frames 5-7
         discs = [] if 5 <= i <= 7 else [(30.0 + 4 * i, 60.0, 4.0)]
         cv2.imwrite(str(frames / f"{i:02d}.png"), draw_discs((160, 120), discs))
     config = tmp_path / "c.toml"
-    config.write_text(f"[track]\nenabled = true\nmax_misses = 1\nrevive_frames = {revive}\n")
+    config.write_text(f"[track]\nenabled = true\nmax_misses = 1\nkeep_misses = {keep}\nrevive_frames = {revive}\n")
     result = cli("run", str(frames), "--config", str(config), "--output", "none", "--detections", str(tmp_path / "d.csv"))
     assert result.code == 0, result.err
     rows = list(csv.DictReader((tmp_path / "d.csv").open()))

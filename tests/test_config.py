@@ -66,6 +66,7 @@ fps = 30
     ("[detector]\nname = 'seed'\n[detector.seed]\ncolour = 1\n", "run.toml: unknown key detector.seed.colour; allowed: threshold, blur_kernel, canny_sigma, equalise"),
     ("[detector.contrast]\nk = -1\n", "run.toml: detector.contrast.k: got -1.0, allowed > 0"),
     ("[track]\nrevive_frames = -2\n", "run.toml: track.revive_frames: got -2, allowed >= 0 (0 = off)"),
+    ("[track]\nmax_misses = 6\nkeep_misses = 4\n", "run.toml: track.keep_misses: got 4, allowed >= max_misses (6)"),
     ("[detector.fancy]\nx = 1\n", "run.toml: unknown section [detector.fancy]; allowed: detector.contrast, detector.seed"),
     ("[detector]\nname = 'fancy'\n", "unknown detector 'fancy'; allowed: contrast, seed"),
     ("[lamp]\nx = 1\n", "run.toml: unknown section [lamp]; allowed: source, detector, pattern, output, run"),

@@ -132,6 +132,8 @@ class TrackConfig:
     latency_ms: capture-to-light time to predict over; negative = measured by the runtime.
     confirm_hits: detections before a track is confirmed (and predicted).
     max_misses: frames a confirmed track keeps its hole without a detection (coasting).
+    keep_misses: frames a confirmed track keeps its id without a detection (at least max_misses;
+        unset = max_misses).  Longer helps counting (IDF1), not the light: see Tracker.
     max_dark: frames a confirmed track keeps its hole while its particle was under it during the
         exposure (its misses are expected); 0 = counted as ordinary misses (default; see Tracker).
     revive_frames: frames a deleted track may come back with its id when a detection appears
@@ -143,6 +145,7 @@ class TrackConfig:
     latency_ms: float = -1.0
     confirm_hits: int = 3
     max_misses: int = 5
+    keep_misses: int | None = None
     max_dark: int = 0
     revive_frames: int = 0
 
@@ -153,6 +156,8 @@ class TrackConfig:
             raise ValueError(f"confirm_hits: got {self.confirm_hits}, allowed >= 1")
         if self.max_misses < 0:
             raise ValueError(f"max_misses: got {self.max_misses}, allowed >= 0")
+        if self.keep_misses is not None and self.keep_misses < self.max_misses:
+            raise ValueError(f"keep_misses: got {self.keep_misses}, allowed >= max_misses ({self.max_misses})")
         if self.max_dark < 0:
             raise ValueError(f"max_dark: got {self.max_dark}, allowed >= 0 (0 = off)")
         if self.revive_frames < 0:

@@ -596,8 +596,8 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
     tracker = None
     if tc.enabled:
         from .tracking import Tracker
-        tracker = Tracker(confirm_hits=tc.confirm_hits, max_misses=tc.max_misses, max_dark=tc.max_dark,
-                          revive_frames=tc.revive_frames)
+        tracker = Tracker(confirm_hits=tc.confirm_hits, max_misses=tc.max_misses, keep_misses=tc.keep_misses,
+                          max_dark=tc.max_dark, revive_frames=tc.revive_frames)
     if tracker is None:
         timed.remove("Tracking Duration (s)")
     summary.durations = {c: RunningStats() for c in timed}

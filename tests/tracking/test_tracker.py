@@ -63,8 +63,27 @@ def test_short_disappearance_keeps_the_id_and_long_one_does_not():
     assert len(set(seen.tolist())) == 1
     long_gap = path.copy()
     long_gap[15:25] = np.nan
-    ids = run(Tracker(max_misses=5), long_gap)
+    ids = run(Tracker(max_misses=5, keep_misses=5), long_gap)
     assert len(set(ids[ids >= 0].tolist())) == 2
+    ids = run(Tracker(max_misses=5, keep_misses=12), long_gap)  # 10 misses: the identity is kept
+    assert len(set(ids[ids >= 0].tolist())) == 1
+    with pytest.raises(ValueError, match="keep_misses"):
+        Tracker(max_misses=5, keep_misses=4)
+
+
+def test_a_lost_track_keeps_its_hole_for_max_misses_and_its_id_for_keep_misses():
+    tracker = Tracker(max_misses=3, keep_misses=8)
+    velocity = np.array([200.0, -100.0])
+    holes = []
+    for f in range(30):
+        seen = not 10 <= f < 18  # lost for 8 frames
+        centre = np.array([100.0, 300.0]) + velocity * f * DT
+        tracks = tracker.update(Detections([centre], [3.0]) if seen else Detections.empty(), f * DT)
+        holes.append(len(tracker.holes(f * DT)))
+        if f == 9:
+            first = int(tracks.ids[0])
+    assert holes[10:13] == [1, 1, 1] and holes[13:18] == [0] * 5  # coasting for 3 frames, then no hole
+    assert tracks.detection_ids.tolist() == [first] and holes[18] == 1  # back with its id
 
 
 def test_prediction_for_constant_velocity_is_near_exact():
@@ -99,7 +118,7 @@ def test_a_particle_seen_twice_moves_its_hole_before_it_is_confirmed():
 
 def test_a_particle_back_after_a_gap_gets_its_id_back_with_revive_frames():
     def gap_run(revive):
-        tracker = Tracker(confirm_hits=3, max_misses=1, revive_frames=revive)
+        tracker = Tracker(confirm_hits=3, max_misses=1, keep_misses=1, tentative_misses=1, revive_frames=revive)
         ids = []
         for f in range(12):
             x = 50.0 + 6 * f  # 360 px/s to the right, unseen in frames 5-7
@@ -114,7 +133,7 @@ def test_a_particle_back_after_a_gap_gets_its_id_back_with_revive_frames():
     holes = tracker.holes(11 * DT)
     assert holes.centres[0, 0] == pytest.approx(50 + 6 * 11, abs=1.0)
     # a detection far from where the dead track would be is a new particle
-    tracker = Tracker(confirm_hits=3, max_misses=1, revive_frames=5)
+    tracker = Tracker(confirm_hits=3, max_misses=1, keep_misses=1, tentative_misses=1, revive_frames=5)
     for f in range(5):
         tracker.update(Detections([[50.0 + 6 * f, 40.0]], [3.0]), f * DT)
     for f in range(5, 8):
@@ -131,10 +150,11 @@ def test_empty_frames():
     assert len(tracks) == 0 and tracks.detection_ids.shape == (0,)
     assert tracker.holes(0.1).centres.shape == (0, 2)
     tracker.update(Detections([[10, 10]], [2.0]), DT)
-    tracks = tracker.update(Detections.empty(), 2 * DT)
-    assert len(tracks) == 1 and len(tracker.holes(2 * DT)) == 0  # a tentative track survives one miss, unlit
-    tracks = tracker.update(Detections.empty(), 3 * DT)
-    assert len(tracks) == 0  # ... and is dropped at the second
+    for f in range(2, 5):
+        tracks = tracker.update(Detections.empty(), f * DT)
+        assert len(tracks) == 1 and len(tracker.holes(f * DT)) == 0  # a tentative track survives 3 misses, unlit
+    tracks = tracker.update(Detections.empty(), 5 * DT)
+    assert len(tracks) == 0  # ... and is dropped at the fourth
     strict = Tracker(tentative_misses=0)
     strict.update(Detections([[10, 10]], [2.0]), DT)
     assert len(strict.update(Detections.empty(), 2 * DT)) == 0
@@ -211,20 +231,43 @@ def test_block_filter_equals_the_full_5x5_kalman_filter():
 
 
 def test_a_track_in_the_dark_of_its_own_hole_lives_on_with_max_dark():
-    def run(max_dark):
-        tracker = Tracker(max_dark=max_dark)
+    def run(max_dark, **kw):
+        tracker = Tracker(max_dark=max_dark, **kw)
         for f in range(4):  # confirmed, moving right at 2 px per frame
             tracker.update(Detections([[100.0 + 2 * f, 50.0]], [3.0]), f * DT)
         first = int(tracker.ids[0])
         for f in range(4, 12):  # under its hole: unseen, and expected so
             tracker.update(Detections.empty(), f * DT, unlit=np.array([first]))
-        alive = first in tracker.ids.tolist()
+        holed = len(tracker.holes(11 * DT)) == 1
         tracks = tracker.update(Detections([[100.0 + 2 * 12, 50.0]], [3.0]), 12 * DT)
-        return alive, int(tracks.detection_ids[0]) == first
+        return holed, int(tracks.detection_ids[0]) == first
 
-    assert run(10) == (True, True)  # 8 dark frames: still on its path, and the particle is found again
-    assert run(0)[0] is False  # by default expected misses count like any: deleted after 5
+    assert run(10) == (True, True)  # 8 dark frames: its hole still on its path, and the particle is found again
+    assert run(0) == (False, False)  # by default expected misses count like any: no hole, no track after 5
+    assert run(0, keep_misses=12) == (False, True)  # no hole after 5, the id kept for 12
     tracker = Tracker(max_dark=3)
     tracker.update(Detections([[10.0, 10.0]], [2.0]), 0.0)
     tracker.update(Detections.empty(), DT, unlit=np.array([int(tracker.ids[0])]))
     assert len(tracker.ids) == 1 and len(tracker.holes(DT)) == 0  # tentative: no dark bonus, no hole
+
+
+def test_a_new_fast_particle_starts_with_its_neighbours_motion():
+    # sand in a thruster wash: everything moves 25 px a frame to the right; a grain that comes into
+    # view at 30 px a frame is found again in its second frame only if its track starts moving like
+    # its neighbours (a track at rest has a 27 px gate)
+    crowd = np.array([[100.0 + 60 * i, 100.0 + 70 * j] for i in range(4) for j in range(4)])
+
+    def run(**kw):
+        tracker = Tracker(**kw)
+        for f in range(6):
+            found = crowd + np.array([1500.0, 100.0]) * f * DT
+            if f >= 4:  # the new grain, between the others
+                found = np.vstack([found, np.array([130.0, 135.0]) + np.array([1800.0, 0.0]) * (f - 4) * DT])
+            tracks = tracker.update(Detections(found, np.full(len(found), 2.0)), f * DT)
+            if f == 4:
+                born = int(tracks.detection_ids[-1])
+        return born, int(tracks.detection_ids[-1])
+    born, later = run()
+    assert later == born
+    born, later = run(flow_neighbours=0)  # at rest, its first move is beyond its gate: born again
+    assert later != born
