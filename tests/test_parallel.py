@@ -79,7 +79,7 @@ def test_processes_mode_end_to_end_matches_single(tmp_path, mode):
 def test_a_crash_in_the_detector_process_stops_the_run(tmp_path, monkeypatch):
     from antiscatter.detection import contrast
 
-    def broken(image, *, factor=2):
+    def broken(image, **params):
         raise RuntimeError("worker exploded")
 
     monkeypatch.setattr(contrast, "downsample", broken)  # inherited by the forked worker

@@ -372,3 +372,21 @@ def test_a_slow_twinkling_particle_does_not_sink_into_the_background():
         return hits
     assert run(0.0) >= 45
     assert run(0.1) >= 58
+
+
+def test_the_channel_of_a_colour_frame_is_chosen_by_channel():
+    rng = np.random.default_rng(6)
+    frame = np.empty((240, 320, 3), np.float64)
+    frame[...] = (90, 80, 20)  # blue-green water: little red left
+    frame += rng.normal(0, 2.0, frame.shape)
+    cv2.circle(frame, (100, 120), 4, (90, 80, 80), -1)  # a particle that only adds red
+    cv2.circle(frame, (220, 120), 4, (130, 120, 60), -1)  # a whitish one: adds to all three
+    frame = np.clip(frame, 0, 255).astype(np.uint8)
+    def xs(channel):
+        return sorted(np.round(detect(frame, "contrast", channel=channel).centres[:, 0]).astype(int).tolist())
+    assert xs("green") == [220]
+    assert xs("red") == [100, 220] and xs("min") == [100, 220] and xs("luma") == [100, 220]
+    grey = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)  # luma is what a grey (or Y) frame of the scene gives
+    assert np.array_equal(downsample(frame, factor=2), downsample(grey, factor=2))
+    with pytest.raises(ValueError, match="channel: got 'purple', allowed luma, green, red, blue, min"):
+        ContrastParams(channel="purple")
