@@ -390,3 +390,22 @@ def test_the_channel_of_a_colour_frame_is_chosen_by_channel():
     assert np.array_equal(downsample(frame, factor=2), downsample(grey, factor=2))
     with pytest.raises(ValueError, match="channel: got 'purple', allowed luma, green, red, blue, min"):
         ContrastParams(channel="purple")
+
+
+def test_a_big_bright_blob_crossing_a_still_view_does_not_move_the_background(monkeypatch):
+    # its light shifts the brightness profiles the pan follower goes by by half a pixel; the move
+    # that rounds to must be checked against the image (it was made, back and forth, before)
+    from antiscatter.detection import contrast
+
+    moves = []
+    follow = contrast.BackgroundModel.follow
+    monkeypatch.setattr(contrast.BackgroundModel, "follow", lambda self, half: moves.append(follow(self, half)) or moves[-1])
+    rng = np.random.default_rng(2)
+    ground = 40 + 50 * fractal_noise((800, 600), rng, octaves=4, base=4)
+    detector = make_detector("contrast")
+    for i in range(60):
+        frame = ground + rng.normal(0, 2.0, ground.shape)
+        if i >= 30:
+            cv2.circle(frame, (100 + 12 * (i - 30), 300), 70, 250, -1)
+        detector.detect(np.clip(frame, 0, 255).astype(np.uint8))
+    assert len(moves) == 59 and set(moves) == {(0, 0)}
