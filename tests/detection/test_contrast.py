@@ -409,3 +409,19 @@ def test_a_big_bright_blob_crossing_a_still_view_does_not_move_the_background(mo
             cv2.circle(frame, (100 + 12 * (i - 30), 300), 70, 250, -1)
         detector.detect(np.clip(frame, 0, 255).astype(np.uint8))
     assert len(moves) == 59 and set(moves) == {(0, 0)}
+
+
+def test_a_single_frame_takes_texture_larger_than_particles_as_background():
+    # the first frame (or a still) has nothing learnt: the median over `texture` pixels keeps the
+    # seabed's larger bright patches out of the detections while the particles stay found
+    size = (800, 600)
+    frame = scene(size, DISCS, background="texture", seed=3)
+    counts = {}
+    for texture in (0, 28):
+        found = detect(frame, "contrast", texture=texture)
+        for x, y, r, _ in DISCS:
+            assert np.min(np.hypot(found.centres[:, 0] - x, found.centres[:, 1] - y)) <= 1.0
+        counts[texture] = len(found) - len(DISCS)
+    assert counts[28] <= 3 and counts[0] >= counts[28] + 10, counts
+    with pytest.raises(ValueError, match="texture: got 2, allowed 0"):
+        ContrastParams(texture=2)
