@@ -90,7 +90,7 @@ class ContrastParams:
         catalogue -0.001..+0.053 (fullres 0.899 -> 0.952, sand 0.942 -> 0.963, textured 0.928
         -> 0.940, mixed 0.932 -> 0.942; on the seabed the first frames had 150-215 texture
         false alarms each), one textured test frame 177-323 false alarms -> 1-3, MSRB 0.240 ->
-        0.300 and 0.359 -> 0.316 (flakes up to 32 px: half hidden in the window).  20 took
+        0.300 and 0.359 -> 0.354 (flakes up to 32 px: half hidden in the window).  20 took
         0.005-0.011 more on the seabed but hollowed an 8 px particle in a single frame.
     channel: the plane of a colour (BGR) frame the detector works on (a grey or Y frame is used
         as it is): ``luma`` (default: the Y the camera's YUV stream gives, so files and camera
@@ -99,8 +99,8 @@ class ContrastParams:
         0.926 -> 0.942; the three channels' noise averages while a whitish particle adds to
         all), MSRB stills 0.223 -> 0.240 and 0.326 -> 0.359, and the conversion is cheaper than
         extracting a plane.  ``red`` (or ``min``) suits sunlit blue-green water, where the
-        background has lost its red and whitish snow has not: MSRB 0.302 and 0.453, but on the
-        lamp-lit simulator scenes 0.01-0.07 below luma.
+        background has lost its red and whitish snow has not: MSRB 0.316 and 0.462 (luma 0.300
+        and 0.354), but on the lamp-lit simulator scenes 0.01-0.08 below luma.
     """
 
     k: float = 4.0
