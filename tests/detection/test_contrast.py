@@ -425,3 +425,17 @@ def test_a_single_frame_takes_texture_larger_than_particles_as_background():
     assert counts[28] <= 3 and counts[0] >= counts[28] + 10, counts
     with pytest.raises(ValueError, match="texture: got 2, allowed 0"):
         ContrastParams(texture=2)
+
+
+def test_the_radius_is_the_half_maximum_extent_whatever_the_brightness():
+    # the threshold's extent grows with brightness (a bright spot's blur clears the noise farther
+    # out); at half its peak a blurred disc is as wide however bright it is
+    for r in (2.0, 4.0, 6.0):
+        radii = {core: [float(detect(scene((800, 600), [(400.3, 300.6, r, c)], background="flat"), "contrast",
+                                     core=core).radii[0]) for c in (30, 80, 200)] for core in (0.0, 0.5)}
+        assert max(radii[0.5]) - min(radii[0.5]) <= 0.5
+        assert all(r <= a <= r + 3 for a in radii[0.5])  # the hole still covers the particle
+        assert all(a < b for a, b in zip(radii[0.5], radii[0.0]))
+    assert max(radii[0.0]) - min(radii[0.0]) >= 0.5
+    with pytest.raises(ValueError, match="core: got 1.0, allowed 0 <= core < 1"):
+        ContrastParams(core=1.0)
