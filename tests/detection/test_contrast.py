@@ -439,3 +439,27 @@ def test_the_radius_is_the_half_maximum_extent_whatever_the_brightness():
     assert max(radii[0.0]) - min(radii[0.0]) >= 0.5
     with pytest.raises(ValueError, match="core: got 1.0, allowed 0 <= core < 1"):
         ContrastParams(core=1.0)
+
+
+@pytest.mark.parametrize("move", [(0, 2), (2, 1), (-1, -2)])
+def test_the_background_follows_vertical_and_diagonal_pans(move):
+    # smooth ground: each row's (or column's) mean over the whole view varies by only ~0.2 grey
+    # levels, which once counted as a plain view with nothing to follow
+    mx, my = move
+    rng = np.random.default_rng(1)
+    ground = 40 + 50 * fractal_noise((900, 900), rng, octaves=4, base=4)
+    particles = [(60 + 70 * k, 80 + (37 * k) % 320) for k in range(8)]
+    detector = make_detector("contrast")
+    for i in range(30):
+        x0, y0 = 100 + mx * i, 100 + my * i
+        view = ground[y0:y0 + 480, x0:x0 + 640]
+        frame = np.clip(view + rng.normal(0, 2.0, view.shape), 0, 255).astype(np.uint8)
+        for x, y in particles:
+            cv2.circle(frame, (x, y + i), 3, 230, -1)
+        found = detector.detect(cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR))
+    # away from the edges that have just come into view
+    x, y = found.centres[:, 0], found.centres[:, 1]
+    inside = (x > 40) & (x < 600) & (y > 40) & (y < 440)
+    assert inside.sum() <= len(particles) + 3, int(inside.sum())
+    for px, py in particles:
+        assert (np.hypot(x - px, y - (py + 29)) < 3).any()

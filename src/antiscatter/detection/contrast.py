@@ -830,6 +830,11 @@ UNLIT = 0.1
 
 #: largest view shift between two frames that the background follows (working pixels)
 MAX_FOLLOW = 16
+#: a profile whose high-passed spread is below this (grey levels) is a plain view with nothing to
+#: follow.  0.2 took smooth seabed for plain: averaged over a whole row its texture varies by only
+#: ~0.2, and vertical and diagonal pans over it were not followed (400-950 false detections a
+#: frame, 24-145 now); noise alone correlates below the 0.8 the shift needs anyway.
+PLAIN = 0.1
 
 
 def _fits_better(frame: np.ndarray, base: np.ndarray, dx: int, dy: int) -> bool:
@@ -857,7 +862,7 @@ def _profile_shift(reference: np.ndarray, profile: np.ndarray, max_shift: int) -
     # high-pass: minus a 15-sample running mean, so the lamp's cone does not count
     both -= cv2.blur(both, (15, 1), borderType=cv2.BORDER_REPLICATE)
     r, p = both
-    if min(cv2.meanStdDev(v)[1][0, 0] for v in (r, p)) < 0.2:  # a plain view (open water): nothing to follow
+    if min(cv2.meanStdDev(v)[1][0, 0] for v in (r, p)) < PLAIN:  # a plain view (open water): nothing to follow
         return None
     # normalised correlation of the profile's middle with every window of the reference (OpenCV, one
     # call); the window starting at j stands for the shift max_shift - j: reversed, index i <-> i - max
