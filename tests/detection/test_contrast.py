@@ -231,9 +231,8 @@ def pan(detector, frames=30):
 def test_the_background_follows_the_view_when_it_pans():
     found, particles = pan(make_detector("contrast"))
     # learnt ground stays ground: the particles and hardly anything else (without following: ~1000);
-    # the strip that has just come into view at the right has no learnt background yet
-    inside = found.centres[:, 0] < 600
-    assert inside.sum() <= len(particles) + 2 and (~inside).sum() <= 40
+    # the strip that has just come into view at the right takes its background from the frame
+    assert len(found) <= len(particles) + 2
     for x, y in particles:
         assert (np.hypot(found.centres[:, 0] - x, found.centres[:, 1] - y) < 3).any()
     still, _ = pan(make_detector("contrast", ContrastParams(follow=False)))  # a rig that holds still
@@ -457,9 +456,7 @@ def test_the_background_follows_vertical_and_diagonal_pans(move):
         for x, y in particles:
             cv2.circle(frame, (x, y + i), 3, 230, -1)
         found = detector.detect(cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR))
-    # away from the edges that have just come into view
     x, y = found.centres[:, 0], found.centres[:, 1]
-    inside = (x > 40) & (x < 600) & (y > 40) & (y < 440)
-    assert inside.sum() <= len(particles) + 3, int(inside.sum())
+    assert len(found) <= len(particles) + 3, len(found)  # the edges that came into view included
     for px, py in particles:
         assert (np.hypot(x - px, y - (py + 29)) < 3).any()

@@ -355,14 +355,34 @@ class BackgroundModel:
 
         def move(image: np.ndarray) -> np.ndarray:
             return cv2.warpAffine(image, m, (w, h), flags=cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
-        self.background = move(self.background)  # the strip that came into view: its edge, repeated
+        self.background = move(self.background)
         self.base = move(self.base)
+        self._fill_entering(half, dx, dy)
         self._profiles = None
         if self._previous is not None:
             self._previous = move(self._previous)
         if self._persist is not None:
             self._persist = move(self._persist)
         return dx, dy
+
+    def _fill_entering(self, half: np.ndarray, dx: int, dy: int) -> None:
+        """The ground that came into view with a move (dx, dy) has nothing learnt: its background is
+        taken from this frame alone (:func:`spatial_background`, texture and all), as at the start.
+        Before, the edge was repeated across it and its texture showed as particles at the leading
+        edge (panning over fractal seabed 28-128 detections a frame for 20 particles, 21 now)."""
+        h, w = half.shape
+        reach = max(self.window, 2 * self.cell)  # what the spatial background looks at around a pixel
+        for shift, size, axis in ((dx, w, 1), (dy, h, 0)):
+            if not shift:
+                continue
+            # the strip [a, b) that came into view along this axis, and the area [lo, hi) around it
+            a, b = (0, shift) if shift > 0 else (size + shift, size)
+            lo, hi = max(0, a - reach), min(size, b + reach)
+            fresh = spatial_background(half[:, lo:hi] if axis else half[lo:hi], cell=self.cell, window=self.window)
+            part = fresh[:, a - lo:b - lo] if axis else fresh[a - lo:b - lo]
+            strip = (slice(None), slice(a, b)) if axis else (slice(a, b), slice(None))
+            self.background[strip] = part
+            self.base[strip] = cv2.convertScaleAbs(part)
 
     def new_scene(self, half: np.ndarray) -> bool:
         """True when more than ``NEW_SCENE`` of the frame (every 4th row) differs from the background by
