@@ -331,8 +331,9 @@ class BackgroundModel:
         cone does not count) after an opening at half resolution that takes out particles (small
         bright blobs) and keeps the ground's texture.  A plain view (open water) has no texture to
         go by and is left alone; a move is made only when it brings the background closer to the
-        frame (:func:`_fits_better`).  The background's profiles are renewed every ``bands`` frames
-        (one learning cycle) and after each move.  Returns the move (dx, dy)."""
+        frame (:func:`_fits_better`); the ground that came into view takes its background from
+        the frame (:meth:`_fill_entering`).  The background's profiles are renewed every ``bands``
+        frames (one learning cycle) and after each move.  Returns the move (dx, dy)."""
         sub = (slice(None, None, 2), slice(None, None, 2))
         if self._profiles is None or self._profiled >= self.bands:
             base = cv2.morphologyEx(self.base[sub], cv2.MORPH_OPEN, _K3)
