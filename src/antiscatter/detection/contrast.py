@@ -14,12 +14,13 @@ global level:
 2. ``background`` -- the background at a coarse scale (cells of ``cell`` pixels):
    the 3x3-cell median of the cell means ignores a particle filling a cell, so
    uneven lamp cones and dim far scenes are followed while particles are not;
-   where a median over ``texture`` pixels is brighter, that (bright texture larger
-   than a particle is background from the first frame).  When frames follow each other (a video or the camera), a per-pixel
-   background learnt over about ``memory`` frames -- updated only where no
-   particle was found -- takes over, so static texture (seabed pebbles, tank
-   padding) stops looking like particles; ``memory=0`` keeps the detector
-   single-frame.
+   where a median over ``texture`` pixels is brighter, that (bright texture
+   larger than a particle is background from the first frame).  When frames
+   follow each other (a video or the camera), a per-pixel background learnt over
+   about ``memory`` frames -- updated only where no particle was found -- takes
+   over, so static texture (seabed pebbles, tank padding) stops looking like
+   particles, and it moves with the view when the vehicle moves; ``memory=0``
+   keeps the detector single-frame.
 3. ``threshold`` -- the noise per coarse cell is the robust spread of
    (frame - background) there (median-filtered over cells so particles do not
    inflate it); a pixel is a particle candidate when it exceeds the background
@@ -29,7 +30,7 @@ global level:
 5. ``measure`` -- split a component where it holds separate intensity peaks
    (touching or overlapping particles), reject what is not a particle (see
    below), and give each particle its brightness-weighted centre and a radius
-   covering its whole extent plus ``halo`` pixels of blur.
+   reaching its half-maximum extent (``core``) plus ``halo`` pixels of blur.
 
 Rejection rule: a component is not a particle when its covering radius exceeds
 ``max_radius`` (pixels; scaled up for frames wider than 800 px, whose pixels
@@ -73,7 +74,7 @@ class ContrastParams:
         than the particles on the catalogue; at half maximum 1.3-1.8 px: scene light kept +0.01
         to +0.06 (dense 0.884 -> 0.940), the particles' light under holes -0.003 to -0.016; in
         the twin co-located 0.889 / 0.937 -> 0.879 / 0.948, at 12 cm with probing 0.785 / 0.816
-        -> 0.792 / 0.833.
+        -> 0.793 / 0.833.
     max_radius: largest particle radius in pixels, for frames up to 800 px wide; scaled with the
         width above that (default 48).
     split: split components with several intensity peaks (default true).
@@ -822,9 +823,8 @@ def build_contrast(params: ContrastParams) -> Detector:
         if seen is not None and seen.shape != mask.shape:
             seen = None
         found = measure(components, excess, model.noise, halo=params.halo, core=params.core,
-                        max_radius=params.max_radius,
-                        split=params.split, frame_width=state["width"], factor=state["factor"],
-                        lone_k=params.lone_k, seen=seen)
+                        max_radius=params.max_radius, split=params.split, frame_width=state["width"],
+                        factor=state["factor"], lone_k=params.lone_k, seen=seen)
         if persist_kernel is not None:
             state["seen"] = cv2.dilate(mask, persist_kernel)
         return reflectance, mask, found
@@ -869,6 +869,8 @@ def _fits_better(frame: np.ndarray, base: np.ndarray, dx: int, dy: int) -> bool:
     moved = base[max(-dy, 0):h - max(dy, 0), max(-dx, 0):w - max(dx, 0)]  # base[y - dy, x - dx]
     here = frame[ys, xs][::4]
     return cv2.norm(here, moved[::4], cv2.NORM_L1) < cv2.norm(here, base[ys, xs][::4], cv2.NORM_L1)
+
+
 _K3 = np.ones((3, 3), np.uint8)
 
 
