@@ -336,7 +336,7 @@ def test_a_faint_particle_where_the_tracker_expects_one_is_found():
 
     rng = np.random.default_rng(0)
     frame = np.clip(40 + rng.normal(0, 2.0, (300, 400)), 0, 255)
-    cv2.circle(frame, (200, 150), 3, 40 + 4, -1)  # dimmed under its hole: 2 noise units a pixel
+    cv2.circle(frame, (200, 150), 3, 40 + 5, -1)  # dimmed under its hole: 2.5 noise units a pixel
     image = frame.astype(np.uint8)
     plain = make_detector("contrast", ContrastParams(memory=0))
     assert not (np.hypot(plain.detect(image).centres[:, 0] - 200, plain.detect(image).centres[:, 1] - 150) < 3).any()
