@@ -80,6 +80,11 @@ STRATEGIES = ("none", "dim", "pulse", "flash", "coast")
 #: frames the system needs to start up (the detector's 16-frame background warm-up, the first
 #: tracks' confirmation); the ``_steady`` figures leave them out (at most half a run)
 SETTLE_FRAMES = 20
+
+
+def steady_from(frames: int) -> int:
+    """The first frame of a run of ``frames`` that the ``_steady`` figures count."""
+    return min(SETTLE_FRAMES, frames // 2)
 #: the exposure the simulator's brightness is set for (seconds); the twin scales the light a
 #: camera frame gathers by exposure / this
 REFERENCE_EXPOSURE_S = 0.004
@@ -374,7 +379,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                        "particle_light": lit, "particle_light_full": total})
     removed = 1.0 - on_particles / off_particles if off_particles else 0.0
     # after the start-up: the detector's background warm-up and the first tracks' confirmation
-    settle = min(SETTLE_FRAMES, frames // 2)
+    settle = steady_from(frames)
     steady = series[settle:]
     steady_full = sum(f["particle_light_full"] for f in steady)
     removed_steady = 1.0 - sum(f["particle_light"] for f in steady) / steady_full if steady_full else 0.0

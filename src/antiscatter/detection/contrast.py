@@ -438,21 +438,21 @@ class BackgroundModel:
         if warm:
             for band in range(self.bands):
                 self._learn_band(half, mask, band, first, per_update=1, needed=max(2, self.PERSIST // 2),
-                                 frozen=frozen)
+                                 under=self.UNDER_WARM, frozen=frozen)
             self._next = 0
             self._update_limit(half.shape)
             return
         band = self._next
         self._next = (band + 1) % self.bands
         self._learn_band(half, mask, band, first, per_update=self.bands,
-                         needed=max(2, -(-self.PERSIST // self.bands)), frozen=frozen)
+                         needed=max(2, -(-self.PERSIST // self.bands)), under=self.UNDER, frozen=frozen)
         if self._next == 0:  # a whole cycle of bands: the noise map has been renewed
             self._update_limit(half.shape)
 
     def _learn_band(self, half: np.ndarray, mask: np.ndarray, band: int, first: bool, *, per_update: int,
-                    needed: int, frozen: np.ndarray | None = None) -> None:
+                    needed: int, under: float, frozen: np.ndarray | None = None) -> None:
         """Learn the rows of ``band``; ``per_update`` frames pass between its updates, ``needed``
-        steady updates make a "particle" scene."""
+        steady updates make a "particle" scene, pixels under a particle learn at ``under`` of the rate."""
         h, w = half.shape
         r0, r1, c0, c1 = self._rows(band, h)
         if r1 <= r0:
@@ -476,7 +476,6 @@ class BackgroundModel:
             scene = cv2.compare(persist, needed, cv2.CMP_GE)
             cv2.accumulateWeighted(frame, background, min(1.0, 4 * rate), mask=scene)
             self._previous[r0:r1] = frame
-        under = self.UNDER_WARM if self._frames <= self.WARMUP else self.UNDER
         cv2.accumulateWeighted(frame, background, rate * under, mask=live)
         cv2.accumulateWeighted(frame, background, rate * (1 - under), mask=cv2.bitwise_not(particles))
         cv2.convertScaleAbs(background, dst=self.base[r0:r1])
@@ -543,14 +542,16 @@ def measure(components: dict[str, np.ndarray], excess: np.ndarray, noise: np.nda
     wsum = np.bincount(lab, weights=weight, minlength=n)
     cx = np.bincount(lab, weights=weight * x, minlength=n) / wsum
     cy = np.bincount(lab, weights=weight * y, minlength=n) / wsum
-    dx, dy = x - cx[lab], y - cy[lab]
-    peak, far2 = _group_max(lab, n, weight, dx * dx + dy * dy)
+    d2 = (x - cx[lab]) ** 2 + (y - cy[lab]) ** 2
+    if core:  # the particle is where its light is at least `core` of its peak, not all its halo
+        (peak,) = _group_max(lab, n, weight)
+        bright = weight >= core * peak[lab]
+        (far2,) = _group_max(lab[bright], n, d2[bright])
+    else:
+        peak, far2 = _group_max(lab, n, weight, d2)
     # working -> full resolution: pixel centres map as u = f x + (f - 1) / 2
     offset = (factor - 1) / 2.0
     centres = np.column_stack([factor * cx + offset, factor * cy + offset])
-    if core:  # the particle is where its light is at least `core` of its peak, not all its halo
-        bright = weight >= core * peak[lab]
-        (far2,) = _group_max(lab[bright], n, (dx * dx + dy * dy)[bright])
     far = np.sqrt(far2)
     radii = factor * (far + 0.5) + halo  # the farthest pixel's far edge, plus the blur halo
     keep = (radii <= max_radius * max(1.0, frame_width / 800.0)) & (wsum > 0)

@@ -178,7 +178,7 @@ def scoreboard(*, scenarios: dict[str, Any], catalogue_version: int, detectors: 
                             ("pred1", "pred. err +1 (px)", "{:.2f}"), ("pred3", "pred. err +3 (px)", "{:.2f}")])
         data["tracking"] = rows
     if twin_frames:
-        from ..twin import SETTLE_FRAMES
+        from ..twin import steady_from
 
         md += ["", "## Closed loop (`antiscatter twin`)", "",
                f"Preset mixed, 800x600 camera at 60 Hz (4 ms exposure), 1280x800 projector at 120 Hz, "
@@ -186,7 +186,7 @@ def scoreboard(*, scenarios: dict[str, Any], catalogue_version: int, detectors: 
                f"1-{twin_seeds}; \"range\": the lowest and highest removed among them). Removed = backscatter "
                "withheld from particles (each weighted by the light it sends back: brightness times image "
                "area), kept = scene light left on (1 = full lamp), over the whole run and, \"steady\", from frame "
-               f"{min(SETTLE_FRAMES, twin_frames // 2)} on (after the detector's warm-up and the first "
+               f"{steady_from(twin_frames)} on (after the detector's warm-up and the first "
                "tracks' confirmation). Holes drawn with the twin's exact geometry at the working "
                "depth (\"calibrated\"), stretched over each particle's disparity range (\"range\"), or "
                "at each track's depth found by bisection under dim or pulsed holes (\"probe\"). With a mapping other "

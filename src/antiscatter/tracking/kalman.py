@@ -164,7 +164,7 @@ class Tracker:
         x = x.copy()
         x[:, 0:2] += x[:, 2:4] * dt
         # P' = F P F^T + Q per axis, F = [[1, dt], [0, 1]], Q = q [[dt^4/4, dt^3/2], [dt^3/2, dt^2]]
-        return (x, pp + 2 * dt * pv + dt * dt * vv + q * dt ** 4 / 4, pv + dt * vv + q * dt ** 3 / 2,
+        return (x, _position_variance(pp, pv, vv, q, dt), pv + dt * vv + q * dt ** 3 / 2,
                 vv + q * dt * dt, rr + self.radius_noise ** 2 * dt)
 
     def _gates(self, pp: np.ndarray) -> np.ndarray:
@@ -248,18 +248,18 @@ class Tracker:
             new_x[:, 2:4] = self._flow(new_x[:, :2])
             new_ids = np.arange(self._next_id, self._next_id + m, dtype=np.int64)
             self._next_id += m
-            self.x = np.concatenate([self.x, new_x])
-            self.pp = np.concatenate([self.pp, np.full((m, 2), m_pos)])
-            self.pv = np.concatenate([self.pv, np.zeros((m, 2))])
-            self.vv = np.concatenate([self.vv, np.full((m, 2), self.initial_speed ** 2)])
-            self.rr = np.concatenate([self.rr, np.full(m, m_rad)])
-            self.ids = np.concatenate([self.ids, new_ids])
-            self.hits = np.concatenate([self.hits, np.ones(m, np.int64)])
-            self.misses = np.concatenate([self.misses, np.zeros(m, np.int64)])
-            self.dark = np.concatenate([self.dark, np.zeros(m, np.int64)])
+            self._append({"x": new_x, "pp": np.full((m, 2), m_pos), "pv": np.zeros((m, 2)),
+                          "vv": np.full((m, 2), self.initial_speed ** 2), "rr": np.full(m, m_rad), "ids": new_ids,
+                          "hits": np.ones(m, np.int64), "misses": np.zeros(m, np.int64),
+                          "dark": np.zeros(m, np.int64)})
             detection_ids[k] = new_ids
         return Tracks(self.ids.copy(), self.x[:, :2].copy(), self.x[:, 2:4].copy(), self.x[:, 4].copy(),
                       self.hits >= self.confirm_hits, self.misses.copy(), timestamp, detection_ids)
+
+    def _append(self, rows: dict[str, np.ndarray]) -> None:
+        """Add tracks: one array per name in ``_FIELDS``, rows in the same order."""
+        for name in self._FIELDS:
+            setattr(self, name, np.concatenate([getattr(self, name), rows[name]]))
 
     def _unexpected(self, confirmed: np.ndarray) -> np.ndarray:
         """(N,) misses in a row that were not expected: a confirmed track's misses under its own
@@ -299,8 +299,7 @@ class Tracker:
             if len(pairs):
                 g, k = pairs[:, 0], unmatched[pairs[:, 1]]
                 start = len(self.x)
-                for name in self._FIELDS:
-                    setattr(self, name, np.concatenate([getattr(self, name), dead[name][g]]))
+                self._append({name: dead[name][g] for name in self._FIELDS})
                 rows = np.arange(start, len(self.x))
                 self.misses[rows] = 0
                 self.dark[rows] = 0
@@ -366,9 +365,13 @@ class Prediction:
         dt = max(0.0, at - self.timestamp)
         moving = self.moving
         centres = self.x[:, :2] + np.where(moving[:, None], self.x[:, 2:4] * dt, 0.0)
-        q = self.accel_noise ** 2
-        pp = self.pp + 2 * dt * self.pv + dt * dt * self.vv + q * dt ** 4 / 4  # predicted position variance
-        sd = np.sqrt(np.max(pp, axis=1))
+        sd = np.sqrt(np.max(_position_variance(self.pp, self.pv, self.vv, self.accel_noise ** 2, dt), axis=1))
         growth = np.minimum(uncertainty_sigma * sd, max_growth)
         radii = np.maximum(self.x[:, 4], 0.5) + np.where(moving, growth, 0.0)
         return Detections(centres, radii, track_ids=self.ids.copy())
+
+
+def _position_variance(pp: np.ndarray, pv: np.ndarray, vv: np.ndarray, q: float, dt: float) -> np.ndarray:
+    """Position variance per axis ``dt`` seconds ahead under constant velocity with white
+    acceleration of spectral density ``q`` (the (0, 0) entry of F P F^T + Q)."""
+    return pp + 2 * dt * pv + dt * dt * vv + q * dt ** 4 / 4
