@@ -507,15 +507,17 @@ def label(mask: np.ndarray) -> dict[str, np.ndarray]:
     """Connected components (8-connected) of ``mask`` as per-pixel arrays of the non-zero pixels.
 
     Returns {"labels": (P,) component index 0.., "x": (P,), "y": (P,), "count": int}.
+    The pixels are found with numpy's flatnonzero on a boolean view (a third of the time of
+    cv2.findNonZero at 1456x1088) and labelled 16-bit whenever they are too few to need more.
     """
-    count, labels = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
-    points = cv2.findNonZero(mask)
-    if points is None:
+    flat = np.flatnonzero(np.greater(mask, 0))
+    if len(flat) == 0:
         empty = np.empty(0, np.intp)
         return {"labels": empty, "x": empty, "y": empty, "count": 0}
-    xy = points.reshape(-1, 2).astype(np.intp)
-    x, y = xy[:, 0], xy[:, 1]
-    return {"labels": labels[y, x].astype(np.intp) - 1, "x": x, "y": y, "count": count - 1}
+    ltype = cv2.CV_16U if len(flat) < 65535 else cv2.CV_32S  # no more components than pixels
+    count, labels = cv2.connectedComponents(mask, connectivity=8, ltype=ltype)
+    y, x = np.divmod(flat, mask.shape[1])
+    return {"labels": labels.ravel()[flat].astype(np.intp) - 1, "x": x, "y": y, "count": count - 1}
 
 
 def measure(components: dict[str, np.ndarray], excess: np.ndarray, noise: np.ndarray, *,
@@ -543,12 +545,11 @@ def measure(components: dict[str, np.ndarray], excess: np.ndarray, noise: np.nda
     cx = np.bincount(lab, weights=weight * x, minlength=n) / wsum
     cy = np.bincount(lab, weights=weight * y, minlength=n) / wsum
     d2 = (x - cx[lab]) ** 2 + (y - cy[lab]) ** 2
+    order, starts = _groups(lab)
+    (peak,) = _group_max(lab, n, weight, groups=(order, starts))
     if core:  # the particle is where its light is at least `core` of its peak, not all its halo
-        (peak,) = _group_max(lab, n, weight)
-        bright = weight >= core * peak[lab]
-        (far2,) = _group_max(lab[bright], n, d2[bright])
-    else:
-        peak, far2 = _group_max(lab, n, weight, d2)
+        d2 = np.where(weight >= core * peak[lab], d2, 0.0)  # the peak itself is always in
+    (far2,) = _group_max(lab, n, d2, groups=(order, starts))
     # working -> full resolution: pixel centres map as u = f x + (f - 1) / 2
     offset = (factor - 1) / 2.0
     centres = np.column_stack([factor * cx + offset, factor * cy + offset])
@@ -638,19 +639,26 @@ _K5 = np.ones((5, 5), np.uint8)
 _MIN_CORE = 20
 
 
-def _group_max(lab: np.ndarray, n: int, *values: np.ndarray) -> list[np.ndarray]:
-    """Per-label maxima of each of ``values`` (0 for absent labels), by sorting the
-    labels once (np.maximum.at is unbuffered and slow; 16-bit labels sort by radix)."""
-    if len(lab) == 0:
-        return [np.zeros(n) for _ in values]
-    keys = lab.astype(np.uint16) if n <= 65536 else lab
+def _groups(lab: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(order, starts): the permutation that sorts ``lab`` (stable; 16-bit labels sort by radix)
+    and where each label's run starts in the sorted order."""
+    keys = lab.astype(np.uint16) if len(lab) and lab.max() < 65536 else lab
     order = np.argsort(keys, kind="stable")
     sorted_lab = lab[order]
     change = np.empty(len(lab), bool)
-    change[0] = True
+    change[:1] = True
     np.not_equal(sorted_lab[1:], sorted_lab[:-1], out=change[1:])
-    starts = np.flatnonzero(change)
-    present = sorted_lab[starts]
+    return order, np.flatnonzero(change)
+
+
+def _group_max(lab: np.ndarray, n: int, *values: np.ndarray,
+               groups: tuple[np.ndarray, np.ndarray] | None = None) -> list[np.ndarray]:
+    """Per-label maxima of each of ``values`` (0 for absent labels), by sorting the labels once
+    (np.maximum.at is unbuffered and slow); ``groups``: :func:`_groups` of ``lab`` if known."""
+    if len(lab) == 0:
+        return [np.zeros(n) for _ in values]
+    order, starts = groups if groups is not None else _groups(lab)
+    present = lab[order[starts]]
     out = []
     for v in values:
         m = np.zeros(n)
