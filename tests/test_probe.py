@@ -105,3 +105,60 @@ def test_probe_runs_need_dim_holes():
     with pytest.raises(ValueError, match="probe needs strategy dim or pulse"):
         TwinRun("contrast", "probe", "flash", predict=True)
     TwinRun("contrast", "probe", "dim", predict=False)  # holes where the particles were seen
+
+
+def _settle(p, tid, centre, true_w, lit, frames=14):
+    """Run a track through the bisection with exact verdicts until its settled hole has held it."""
+    p.observe(Detections(centre, [3.0], scores=[lit], track_ids=[tid]), {}, np.empty(0))
+    for _ in range(frames):
+        a, b = p.probes(Detections(centre, [3.0], track_ids=[tid]))[tid]
+        seen = lit * (0.2 if a <= true_w <= b else 1.0)
+        p.observe(Detections(centre, [3.0], scores=[seen], track_ids=[tid]), {tid: (a, b)}, np.empty(0))
+
+
+def test_brightness_learnt_from_settled_depths_narrows_a_new_particles_search():
+    # particles lit by the lamp: brightness falls with the square of the distance (albedo 0.6-1)
+    rng = np.random.default_rng(3)
+    p = probe()
+    centre = np.array([[400.0, 300.0]])
+    full = (p.w_far, p.w_near)
+    for tid in range(1, 41):
+        z = rng.uniform(0.35, 2.5)
+        lit = 40.0 * rng.uniform(0.6, 1.0) / z ** 2
+        if tid == 1:  # before enough settled tracks: the whole range
+            p.observe(Detections(centre, [3.0], scores=[lit], track_ids=[tid]), {}, np.empty(0))
+            assert (p.tracks[tid].lo, p.tracks[tid].hi) == full
+        _settle(p, tid, centre, 1 / z, lit)
+        p.forget(np.array([]))
+    for z in (0.5, 1.0, 2.0):
+        lit = 40.0 * 0.8 / z ** 2
+        lo, hi = p.prior(lit)
+        assert lo < 1 / z < hi
+        assert (hi - lo) < 0.5 * (p.w_near - p.w_far)  # at most half the range to search
+        p.observe(Detections(centre, [3.0], scores=[lit], track_ids=[99]), {}, np.empty(0))
+        assert (p.tracks[99].lo, p.tracks[99].hi) == (lo, hi)  # where a new track starts
+        p.forget(np.array([]))
+    # a settled hole that misses starts again from the prior once, then from the whole range
+    z = 1.0
+    lit = 40.0 * 0.8 / z ** 2
+    _settle(p, 50, centre, 1 / z, lit)
+    for expected in (p.prior(lit), full):
+        a, b = p.probes(Detections(centre, [3.0], track_ids=[50]))[50]
+        assert (a, b) == (p.tracks[50].lo, p.tracks[50].hi)  # settled
+        p.observe(Detections(centre, [3.0], scores=[lit], track_ids=[50]), {50: (a, b)}, np.empty(0))
+        assert (p.tracks[50].lo, p.tracks[50].hi) == expected
+        _settle(p, 50, centre, 1 / z, lit)
+
+
+def test_a_depth_is_learnt_only_once_its_settled_hole_has_held_the_particle_twice():
+    p = probe()
+    centre = np.array([[400.0, 300.0]])
+    _settle(p, 1, centre, 1 / 0.8, 100.0, frames=5)  # still searching: nothing learnt
+    assert p.prior_size() == 0
+    _settle(p, 2, centre, 1 / 0.8, 100.0)
+    assert p.prior_size() == 1
+    with pytest.raises(ValueError, match="prior_samples"):
+        DepthProbe(GEOMETRY.plane_mapping, prior_samples=-1)
+    off = DepthProbe(GEOMETRY.plane_mapping, prior_samples=0)
+    _settle(off, 2, centre, 1 / 0.8, 100.0)
+    assert off.prior_size() == 0 and off.prior(100.0) == (off.w_far, off.w_near)

@@ -10,7 +10,10 @@ holes (the ``dim`` strategy) a particle under its hole still shows, at
 of a particle's remaining segment and the next exposure says whether that part
 held it (the particle dimmed, or vanished) or not (it stayed as bright as when
 lit).  Bisection over a few frames pins the hole to the particle's depth; a
-hole that stops working (the particle is lit again) reopens the whole segment.
+hole that stops working (the particle is lit again) reopens the search.  A new
+particle's search starts from the depths at which earlier particles of its
+brightness settled (the lamp's inverse-square fall-off, learnt as the dive
+goes: :meth:`DepthProbe.prior`).
 With pulsed holes (the ``pulse`` strategy) the camera only looks during one
 refresh: the probe's half is shown, lifted to the dim level, then, and the
 whole remaining interval (:meth:`DepthProbe.intervals`) is dark the rest of the
@@ -23,6 +26,7 @@ the projector position of p moves along a straight line as w grows.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -40,6 +44,8 @@ class _Track:
     lo: float  # inverse depth interval still holding the particle (1/m)
     hi: float
     lit: float = 0.0  # the particle's brightness when fully lit (detector score), 0 = unknown
+    held: int = 0  # exposures in a row its settled hole was seen to dim it
+    restarted: bool = False  # its search has started again once
 
 
 @dataclass
@@ -58,6 +64,23 @@ class DepthProbe:
         scene seeds 1-4, removal 0.62-0.79 with it, 0.75-0.81 with this.)
     settle_px: stop halving once the interval spans this many projector pixels
         (about a hole's diameter).
+    prior_samples: a new particle's search starts from the inverse depths that particles of its
+        brightness were found at.  The lamp's light falls off with the square of the distance,
+        so brightness says much about depth; how much -- albedos, sizes, defocus, the lamp, the
+        camera's gain, the water -- is learnt from the probe's own results: a line fitted to
+        (log brightness, log inverse depth) of the last ``prior_samples`` tracks whose settled
+        hole was seen to dim them ``HELD`` exposures in a row (82 % of those lie within 10 % of
+        the true depth in the twin, against 67 % of all settled ones), widened to the central
+        ``prior_coverage`` of the residuals plus a quarter each side.  The whole range before
+        ``MIN_PRIOR`` such tracks, with ``prior_samples=0``, and for a track whose search
+        already started again once.  The whole range spans a median 553 projector px at the
+        housing's 12 cm and the searches took 88 % of the light the pattern withheld from the
+        scene; with the prior (three scenes, 120 frames, pulse, prediction) removed 0.812 ->
+        0.824, scene light kept 0.845 -> 0.882 (from frame 20: 0.851 / 0.856 -> 0.866 /
+        0.900).  Coverage 0.6 / 0.7 / 0.8 / 0.95 kept 0.879 / 0.886 / 0.882 / about 0.86, the
+        removal within 0.01.  Off sunlit or very clear water, where brightness says little
+        about the distance to the lamp, the residuals are wide and so is the prior.
+    prior_coverage: share of the residuals the prior's interval covers (default 0.8).
     """
 
     mapping_at: Callable[[float], np.ndarray]
@@ -65,11 +88,24 @@ class DepthProbe:
     far_m: float = 3.0
     dim_level: float = 0.1
     settle_px: float = 12.0
+    prior_samples: int = 400
+    prior_coverage: float = 0.8
     tracks: dict[int, _Track] = field(default_factory=dict)
+
+    #: settled tracks needed before brightness narrows a new particle's search
+    MIN_PRIOR = 30
+    #: exposures in a row a settled hole must be seen to dim its particle before that depth is learnt
+    HELD = 2
 
     def __post_init__(self) -> None:
         if not 0 < self.near_m < self.far_m:
             raise ValueError(f"near_m, far_m: got {self.near_m}, {self.far_m}; allowed 0 < near < far")
+        if self.prior_samples < 0:
+            raise ValueError(f"prior_samples: got {self.prior_samples}, allowed >= 0 (0 = no prior)")
+        if not 0 < self.prior_coverage <= 1:
+            raise ValueError(f"prior_coverage: got {self.prior_coverage}, allowed 0 < coverage <= 1")
+        self._samples: list[tuple[float, float]] = []  # (log brightness, log inverse depth), oldest first
+        self._fit: tuple[float, float, float, float] | None = None  # slope, intercept, residual band
         self.w_far, self.w_near = 1.0 / self.far_m, 1.0 / self.near_m
         self._h_far = np.asarray(self.mapping_at(self.far_m), np.float64)
         self._h_near = np.asarray(self.mapping_at(self.near_m), np.float64)
@@ -93,14 +129,21 @@ class DepthProbe:
         for tid, score in zip(detections.track_ids.tolist(), detections.scores.tolist()):
             if tid < 0 or not np.isfinite(score):  # no brightness from this detector: no verdict
                 continue
-            track = self.tracks.setdefault(tid, _Track(self.w_far, self.w_near))
+            track = self.tracks.get(tid)
+            if track is None:
+                track = self.tracks[tid] = _Track(*self.prior(score))
             probe = shown.get(tid)
             if probe is None or track.lit <= 0:
                 track.lit = score if track.lit <= 0 else 0.7 * track.lit + 0.3 * score
                 continue
             if score < self._threshold * track.lit:
+                settled = probe == (track.lo, track.hi)
+                track.held = track.held + 1 if settled else 0
+                if track.held == self.HELD:  # seen dimmed under its settled hole: its depth is known
+                    self._learn(track)
                 self._hit(track, probe)
             else:
+                track.held = 0
                 self._miss(track, probe)
                 track.lit = 0.7 * track.lit + 0.3 * score
         for tid in np.asarray(coasting).tolist():
@@ -109,6 +152,35 @@ class DepthProbe:
             if track is not None and probe is not None:
                 self._hit(track, probe)
 
+    def prior(self, brightness: float) -> tuple[float, float]:
+        """The inverse-depth interval a new particle of this brightness (lit) is searched over:
+        what settled tracks of that brightness had (see ``prior_samples``), else near..far."""
+        if len(self._samples) < max(self.MIN_PRIOR, 1) or self.prior_samples == 0 or not brightness > 0:
+            return self.w_far, self.w_near
+        if self._fit is None:
+            x, y = np.array(self._samples).T
+            slope, intercept = np.polyfit(x, y, 1) if np.ptp(x) > 0 else (0.0, float(np.mean(y)))
+            tail = (1.0 - self.prior_coverage) / 2.0
+            low, high = np.quantile(y - (slope * x + intercept), [tail, 1.0 - tail])
+            pad = (high - low) / 4.0
+            self._fit = (float(slope), float(intercept), float(low - pad), float(high + pad))
+        slope, intercept, low, high = self._fit
+        middle = slope * math.log(brightness) + intercept
+        lo, hi = max(self.w_far, math.exp(middle + low)), min(self.w_near, math.exp(middle + high))
+        return (lo, hi) if lo < hi else (self.w_far, self.w_near)
+
+    def prior_size(self) -> int:
+        """Settled depths the prior has learnt from (at most ``prior_samples``)."""
+        return len(self._samples)
+
+    def _learn(self, track: _Track) -> None:
+        """A settled track's (brightness, depth) for the prior."""
+        if self.prior_samples == 0 or track.lit <= 0:
+            return
+        self._samples.append((math.log(track.lit), math.log((track.lo + track.hi) / 2)))
+        del self._samples[:-self.prior_samples]
+        self._fit = None
+
     def _hit(self, track: _Track, probe: tuple[float, float]) -> None:
         lo, hi = max(track.lo, probe[0]), min(track.hi, probe[1])
         track.lo, track.hi = (lo, hi) if lo < hi else probe
@@ -116,7 +188,9 @@ class DepthProbe:
     def _miss(self, track: _Track, probe: tuple[float, float]) -> None:
         a, b = probe
         if a <= track.lo + 1e-12 and b >= track.hi - 1e-12:  # the settled hole missed: start again
-            track.lo, track.hi = self.w_far, self.w_near
+            # from its brightness's prior the first time, from the whole range after that
+            track.lo, track.hi = self.prior(track.lit) if not track.restarted else (self.w_far, self.w_near)
+            track.restarted = True
         elif a <= track.lo + 1e-12:
             track.lo = max(track.lo, b)
         elif b >= track.hi - 1e-12:
