@@ -133,7 +133,8 @@ class TrackConfig:
     confirm_hits: detections before a track is confirmed (and predicted).
     max_misses: frames a confirmed track keeps its hole without a detection (coasting).
     keep_misses: frames a confirmed track keeps its id without a detection (at least max_misses;
-        unset = max_misses).  Longer helps counting (IDF1), not the light: see Tracker.
+        unset = 12, or max_misses if more); found again after max_misses, it starts afresh
+        (no old motion): see Tracker.
     max_dark: frames a confirmed track keeps its hole while its particle was under it during the
         exposure (its misses are expected); 0 = counted as ordinary misses (default; see Tracker).
     revive_frames: frames a deleted track may come back with its id when a detection appears

@@ -86,6 +86,29 @@ def test_a_lost_track_keeps_its_hole_for_max_misses_and_its_id_for_keep_misses()
     assert tracks.detection_ids.tolist() == [first] and holes[18] == 1  # back with its id
 
 
+def test_a_track_found_after_its_hole_went_keeps_its_id_but_starts_its_motion_afresh():
+    tracker = Tracker(max_misses=3)  # keep_misses by default 12
+    velocity = np.array([300.0, 0.0])
+    for f in range(10):
+        tracks = tracker.update(Detections([np.array([100.0, 200.0]) + velocity * f * DT], [3.0]), f * DT)
+    first = int(tracks.ids[0])
+    for f in range(10, 16):  # lost for 6 frames: past max_misses, within keep_misses
+        tracker.update(Detections.empty(), f * DT)
+    # found again, at rest: another particle, or the same one stopped -- its old motion is stale
+    tracks = tracker.update(Detections([[150.0, 200.0]], [3.0]), 16 * DT)
+    assert tracks.detection_ids.tolist() == [first]
+    assert not tracks.confirmed[0] and np.allclose(tracks.velocities[0], 0.0)
+    hole = tracker.holes(16 * DT + 0.02)  # seen once since: its hole where it was seen, not moved on
+    assert np.allclose(hole.centres[0], [150.0, 200.0], atol=0.5)
+    # within max_misses the motion is kept: the hole moves on
+    tracker = Tracker(max_misses=3)
+    for f in range(10):
+        tracker.update(Detections([np.array([100.0, 200.0]) + velocity * f * DT], [3.0]), f * DT)
+    tracker.update(Detections.empty(), 10 * DT)
+    tracks = tracker.update(Detections([np.array([100.0, 200.0]) + velocity * 11 * DT], [3.0]), 11 * DT)
+    assert tracks.confirmed[0] and tracks.velocities[0][0] > 250.0
+
+
 def test_prediction_for_constant_velocity_is_near_exact():
     tracker = Tracker(position_noise=0.5)
     velocity = np.array([120.0, -80.0])
@@ -243,8 +266,8 @@ def test_a_track_in_the_dark_of_its_own_hole_lives_on_with_max_dark():
         return holed, int(tracks.detection_ids[0]) == first
 
     assert run(10) == (True, True)  # 8 dark frames: its hole still on its path, and the particle is found again
-    assert run(0) == (False, False)  # by default expected misses count like any: no hole, no track after 5
-    assert run(0, keep_misses=12) == (False, True)  # no hole after 5, the id kept for 12
+    assert run(0, keep_misses=5) == (False, False)  # expected misses count like any: no hole, no track after 5
+    assert run(0) == (False, True)  # by default no hole after 5, the id kept for 12
     tracker = Tracker(max_dark=3)
     tracker.update(Detections([[10.0, 10.0]], [2.0]), 0.0)
     tracker.update(Detections.empty(), DT, unlit=np.array([int(tracker.ids[0])]))
