@@ -109,6 +109,19 @@ def test_a_track_found_after_its_hole_went_keeps_its_id_but_starts_its_motion_af
     assert tracks.confirmed[0] and tracks.velocities[0][0] > 250.0
 
 
+def test_a_lost_track_only_takes_a_detection_no_track_with_a_hole_wants():
+    tracker = Tracker(max_misses=3, position_noise=1.5)
+    for f in range(8):  # two particles at rest, 4 px apart
+        tracks = tracker.update(Detections([[100.0, 100.0], [104.0, 100.0]], [2.0, 2.0]), f * DT)
+    a, b = tracks.detection_ids.tolist()
+    for f in range(8, 12):  # the first is lost past max_misses
+        tracks = tracker.update(Detections([[104.0, 100.0]], [2.0]), f * DT)
+    assert tracks.detection_ids.tolist() == [b] and a in tracks.ids.tolist()  # kept for its identity
+    # the second moves 3 px towards where the first was: nearer the lost track, but its own
+    tracks = tracker.update(Detections([[101.0, 100.0]], [2.0]), 12 * DT)
+    assert tracks.detection_ids.tolist() == [b]
+
+
 def test_prediction_for_constant_velocity_is_near_exact():
     tracker = Tracker(position_noise=0.5)
     velocity = np.array([120.0, -80.0])
