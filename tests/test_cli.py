@@ -274,6 +274,23 @@ def test_track_revive_frames_or_keep_misses_give_a_particle_back_its_id_after_a_
     assert len(rows) == 9 and len({r["track_id"] for r in rows}) == identities
 
 
+@pytest.mark.parametrize("width", [800, 1600])
+def test_run_scales_the_trackers_motion_to_the_frame_width(tmp_path, cli, width):
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    # the same motion in the view: 20 px a frame at 800 wide, 40 at 1600 (a new track's gate is
+    # 27 px for 800 px wide frames: unscaled, the wide frames' particle was born again each frame)
+    step = 20 * width / 800
+    for i in range(6):
+        cv2.imwrite(str(frames / f"{i}.png"), draw_discs((width, 120), [(50.0 + step * i, 60.0, 4.0)]))
+    config = tmp_path / "c.toml"
+    config.write_text("[track]\nenabled = true\n[run]\nfps = 60\n")
+    result = cli("run", str(frames), "--config", str(config), "--output", "none", "--detections", str(tmp_path / "d.csv"))
+    assert result.code == 0, result.err
+    rows = list(csv.DictReader((tmp_path / "d.csv").open()))
+    assert len(rows) == 6 and len({r["track_id"] for r in rows}) == 1
+
+
 def test_strategy_dim_draws_holes_at_the_dim_level(tmp_path, cli):
     result = cli("run", str(_disc_frames(tmp_path)), "--strategy", "dim", "--dim-level", "0.2",
                  "--output", f"files:{tmp_path / 'pat'}")

@@ -122,6 +122,18 @@ def test_a_lost_track_only_takes_a_detection_no_track_with_a_hole_wants():
     assert tracks.detection_ids.tolist() == [b]
 
 
+def test_motion_settings_scale_with_the_frame_width():
+    wide = Tracker(frame_width=1600, flow_neighbours=0)
+    assert (wide.initial_speed, wide.accel_noise, wide.max_gate) == (800.0, 6000.0, 160.0)
+    narrow = Tracker(frame_width=640)
+    assert (narrow.initial_speed, narrow.accel_noise, narrow.max_gate) == (400.0, 3000.0, 80.0)
+    # a particle crossing 40 px a frame: twice the same motion on a frame twice as wide as 800
+    for tracker, identities in ((Tracker(flow_neighbours=0), 6), (wide, 1)):  # out of the gate: born again
+        ids = [int(tracker.update(Detections([[100.0 + 40 * f, 300.0]], [3.0]), f * DT).detection_ids[0])
+               for f in range(6)]
+        assert len(set(ids)) == identities
+
+
 def test_prediction_for_constant_velocity_is_near_exact():
     tracker = Tracker(position_noise=0.5)
     velocity = np.array([120.0, -80.0])
