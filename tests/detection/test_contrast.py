@@ -421,7 +421,7 @@ def test_a_single_frame_takes_texture_larger_than_particles_as_background():
         for x, y, r, _ in DISCS:
             assert np.min(np.hypot(found.centres[:, 0] - x, found.centres[:, 1] - y)) <= 1.0
         counts[texture] = len(found) - len(DISCS)
-    assert counts[28] <= 3 and counts[0] >= counts[28] + 10, counts
+    assert counts[28] <= 5 and counts[0] >= counts[28] + 10, counts
     with pytest.raises(ValueError, match="texture: got 2, allowed 0"):
         ContrastParams(texture=2)
 
@@ -440,7 +440,7 @@ def test_the_radius_is_the_half_maximum_extent_whatever_the_brightness():
         ContrastParams(core=1.0)
 
 
-@pytest.mark.parametrize("move", [(0, 2), (2, 1), (-1, -2)])
+@pytest.mark.parametrize("move", [(0, 2), (2, 1), (-1, -2), (5, 0), (1, 1), (0, 3)])
 def test_the_background_follows_vertical_and_diagonal_pans(move):
     # smooth ground: each row's (or column's) mean over the whole view varies by only ~0.2 grey
     # levels, which once counted as a plain view with nothing to follow
@@ -460,3 +460,39 @@ def test_the_background_follows_vertical_and_diagonal_pans(move):
     assert len(found) <= len(particles) + 3, len(found)  # the edges that came into view included
     for px, py in particles:
         assert (np.hypot(x - px, y - (py + 29)) < 3).any()
+
+
+def test_pooling_keeps_a_speck_smaller_than_a_pixel():
+    frame = np.full((8, 8), 40, np.uint8)
+    frame[2, 5] = 100  # one full-resolution pixel: a speck
+    frame[4:6, 0:2] = 100  # a particle filling its 2x2 block
+    for point, speck in ((0.0, 55), (1.0, 100), (0.33, 70)):
+        half = downsample(frame, factor=2, point=point)
+        assert half.shape == (4, 4) and abs(int(half[1, 2]) - speck) <= 1, (point, half[1, 2])
+        assert half[2, 0] == 100  # a block-filling particle is the same either way
+    odd = np.random.default_rng(0).integers(0, 255, (7, 9), np.uint8)
+    assert np.array_equal(downsample(odd, factor=2, point=1.0), odd[:6, :8].reshape(3, 2, 4, 2).max(axis=(1, 3)))
+    with pytest.raises(ValueError, match="point: got 1.5"):
+        ContrastParams(point=1.5)
+
+
+def test_faint_specks_smaller_than_a_pixel_are_found_with_point_pooling():
+    # drifting single-pixel specks at 6.5 noise units: the block mean keeps a quarter of their peak
+    rng = np.random.default_rng(4)
+    start = np.column_stack([rng.integers(20, 700, 40), rng.integers(20, 580, 40)])
+    found = {}
+    for point in (0.0, 0.33):
+        detector = make_detector("contrast", ContrastParams(point=point))
+        hits = 0
+        for i in range(30):
+            frame = 40 + rng.normal(0, 2.0, (600, 800))
+            specks = start + [i, 0]  # a pixel a frame to the right
+            frame[specks[:, 1], specks[:, 0]] += 13
+            result = detector.detect(np.clip(np.rint(frame), 0, 255).astype(np.uint8))
+            if i >= 20:
+                d = np.hypot(result.centres[:, None, 0] - specks[None, :, 0],
+                             result.centres[:, None, 1] - specks[None, :, 1])
+                hits += int((d.min(axis=0) <= 2).sum()) if len(result) else 0
+                assert len(result) <= len(specks) + 3  # and hardly any noise
+        found[point] = hits / (10 * len(start))
+    assert found[0.33] >= 0.55 and found[0.0] <= 0.25, found  # measured 0.68 and 0.10
