@@ -83,11 +83,13 @@ class ContrastParams:
         spike is the commonest false alarm; a particle's light spreads over its neighbours); 0 = off
         (default 5: a Gaussian spike that high comes once in 3.5 million pixels).
     k_expected: threshold in noise units where a tracked particle is expected (``expect``):
-        a particle dimmed under its own hole stays found (default 3; = k turns it off).  In the
-        twin (pulse, prediction, three scenes) 2.5 / 3 / 3.5 / 4 removed 0.879 / 0.882 / 0.888 /
-        0.885 co-located keeping 0.948 / 0.954 / 0.956 / 0.957, and 0.792 / 0.795 / 0.773 /
-        0.765 at 12 cm with probing (kept 0.833 throughout): lower thresholds find more noise
-        near the tracks, higher ones lose the dimmed particles the depth probe needs.
+        a particle dimmed under its own hole stays found (default 3.5; = k turns it off).  In the
+        twin (pulse, prediction) with ``point`` pooling, 2.5 / 3 / 3.5 / 3.75 / 4 removed 0.751 /
+        0.756 / 0.779 / 0.769 / 0.753 at 12 cm with probing (six scenes; twelve: 3 0.752, 3.5
+        0.766) at the same scene light, and co-located 0.878 / 0.882 / 0.880 / 0.877 / 0.874
+        keeping 0.946 / 0.952 / 0.955 / 0.956 / 0.956: lower thresholds find more noise near the
+        tracks, higher ones lose the dimmed particles the depth probe needs.  (Before pooling 3
+        was the best: pooled noise has a longer bright tail at low thresholds.)
     persist_radius: a single working pixel above the threshold but short of ``lone_k`` is kept
         when the last frame had light above the threshold within this many working pixels -- a
         faint particle persists from frame to frame, a noise spike almost never lands where the
@@ -139,7 +141,7 @@ class ContrastParams:
     split: bool = True
     factor: int = 0
     lone_k: float = 5.0
-    k_expected: float = 3.0
+    k_expected: float = 3.5
     persist_radius: int = 2
     follow: bool = True
     channel: str = "luma"
