@@ -496,3 +496,18 @@ def test_faint_specks_smaller_than_a_pixel_are_found_with_point_pooling():
                 assert len(result) <= len(specks) + 3  # and hardly any noise
         found[point] = hits / (10 * len(start))
     assert found[0.33] >= 0.55 and found[0.0] <= 0.25, found  # measured 0.68 and 0.10
+
+
+def test_overlapping_saturated_discs_are_split_by_shape_in_several_clusters_at_once():
+    # white discs clipped at 255 have no intensity dip where they overlap, only a neck
+    frame = np.full((300, 400), 30, np.uint8)
+    pairs = [((60, 60), (73, 62)), ((200, 80), (200, 94)), ((320, 200), (331, 209))]
+    single = (120, 220)
+    for a, b in pairs:
+        for centre in (a, b):
+            cv2.circle(frame, centre, 8, 255, -1)
+    cv2.circle(frame, single, 11, 255, -1)
+    found = detect(cv2.GaussianBlur(frame, (3, 3), 0), "contrast")
+    assert len(found) == 2 * len(pairs) + 1, found.centres
+    for centre in [c for pair in pairs for c in pair] + [single]:
+        assert np.hypot(*(found.centres - centre).T).min() < 2.5, centre
