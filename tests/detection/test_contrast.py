@@ -426,12 +426,17 @@ def test_a_single_frame_takes_texture_larger_than_particles_as_background():
         ContrastParams(texture=2)
 
 
+def _radius_at(found, centre):
+    """The radius of the detection nearest ``centre`` (a lone noise spike elsewhere does not count)."""
+    return float(found.radii[np.argmin(np.hypot(*(found.centres - centre).T))])
+
+
 def test_the_radius_is_the_half_maximum_extent_whatever_the_brightness():
     # the threshold's extent grows with brightness (a bright spot's blur clears the noise farther
     # out); at half its peak a blurred disc is as wide however bright it is
     for r in (2.0, 4.0, 6.0):
-        radii = {core: [float(detect(scene((800, 600), [(400.3, 300.6, r, c)], background="flat"), "contrast",
-                                     core=core).radii[0]) for c in (30, 80, 200)] for core in (0.0, 0.5)}
+        radii = {core: [_radius_at(detect(scene((800, 600), [(400.3, 300.6, r, c)], background="flat"), "contrast",
+                                          core=core), (400.3, 300.6)) for c in (30, 80, 200)] for core in (0.0, 0.5)}
         assert max(radii[0.5]) - min(radii[0.5]) <= 0.5
         assert all(r <= a <= r + 3 for a in radii[0.5])  # the hole still covers the particle
         assert all(a < b for a, b in zip(radii[0.5], radii[0.0]))
@@ -449,6 +454,7 @@ def test_the_background_follows_vertical_and_diagonal_pans(move):
     ground = 40 + 50 * fractal_noise((900, 900), rng, octaves=4, base=4)
     particles = [(60 + 70 * k, 80 + (37 * k) % 320) for k in range(8)]
     detector = make_detector("contrast")
+    counts = []
     for i in range(30):
         x0, y0 = 100 + mx * i, 100 + my * i
         view = ground[y0:y0 + 480, x0:x0 + 640]
@@ -456,8 +462,11 @@ def test_the_background_follows_vertical_and_diagonal_pans(move):
         for x, y in particles:
             cv2.circle(frame, (x, y + i), 3, 230, -1)
         found = detector.detect(cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR))
+        counts.append(len(found))
     x, y = found.centres[:, 0], found.centres[:, 1]
-    assert len(found) <= len(particles) + 3, len(found)  # the edges that came into view included
+    # the edges that came into view included (a lone noise spike comes and goes: the median of the
+    # last ten frames; the view not followed gave hundreds)
+    assert np.median(counts[-10:]) <= len(particles) + 3, counts
     for px, py in particles:
         assert (np.hypot(x - px, y - (py + 29)) < 3).any()
 

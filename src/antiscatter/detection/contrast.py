@@ -84,12 +84,13 @@ class ContrastParams:
         (default 5: a Gaussian spike that high comes once in 3.5 million pixels).
     k_expected: threshold in noise units where a tracked particle is expected (``expect``):
         a particle dimmed under its own hole stays found (default 3.5; = k turns it off).  In the
-        twin (pulse, prediction) with ``point`` pooling, 2.5 / 3 / 3.5 / 3.75 / 4 removed 0.751 /
+        twin (pulse, prediction) with ``point`` 0.33, 2.5 / 3 / 3.5 / 3.75 / 4 removed 0.751 /
         0.756 / 0.779 / 0.769 / 0.753 at 12 cm with probing (six scenes; twelve: 3 0.752, 3.5
         0.766) at the same scene light, and co-located 0.878 / 0.882 / 0.880 / 0.877 / 0.874
         keeping 0.946 / 0.952 / 0.955 / 0.956 / 0.956: lower thresholds find more noise near the
-        tracks, higher ones lose the dimmed particles the depth probe needs.  (Before pooling 3
-        was the best: pooled noise has a longer bright tail at low thresholds.)
+        tracks, higher ones lose the dimmed particles the depth probe needs.  With ``point``
+        0.15, 3 and 3.5 the same (12 scenes: 0.752 / 0.749 at 12 cm; co-located 0.879 / 0.950
+        and 0.882 / 0.954).
     persist_radius: a single working pixel above the threshold but short of ``lone_k`` is kept
         when the last frame had light above the threshold within this many working pixels -- a
         faint particle persists from frame to frame, a noise spike almost never lands where the
@@ -108,19 +109,25 @@ class ContrastParams:
         0.300 and 0.359 -> 0.354 (flakes up to 32 px: half hidden in the window).  20 took
         0.005-0.011 more on the seabed but hollowed an 8 px particle in a single frame.
     point: share of each working pixel taken from the maximum of its full-resolution block, the
-        rest from the block's mean (default 0.33; 0 = the mean alone, 1 = the maximum alone).  The
+        rest from the block's mean (default 0.15; 0 = the mean alone, 1 = the maximum alone).  The
         mean is the matched filter for a particle that fills the block, but one smaller than a
         pixel -- a far or small flake, a grain -- keeps only a quarter of its peak in it and sinks
         below the threshold (on the catalogue, half the particles missed were such specks: their
-        working excess 0.2-0.25 of their true peak); the maximum keeps all of it.  Against 0:
-        F1 snow 0.942 -> 0.965, mixed 0.942 -> 0.956, textured 0.940 -> 0.951, fullres 0.952 ->
-        0.959, dense 0.839 -> 0.850, sand +0.002, bubbles +0.001, seed 0.737 -> 0.724 (its big
-        overlapping discs merge more), light kept -0.001..-0.009; 0.5 / 0.67 / 1 gained no more
-        on the realistic scenes and cost the seed tank 0.03-0.07.  White noise's bright tail
-        stays as the dark-side noise estimate expects (4 units: 4.1e-5 against 3.2e-5 for the
-        mean).  In the twin, co-located the same removal; at 12 cm with probing 0.762 -> 0.752
-        removed over 12 scenes.  +50 us a frame at 800x600.  Needs sub-pixel view following: a
-        block's maximum depends on where the texture falls in it.
+        working excess 0.2-0.25 of their true peak); the maximum keeps all of it -- and every
+        bright artefact of a compressed frame too.  F1 with point 0 / 0.15 / 0.33 on clean
+        frames: snow 0.943 / 0.959 / 0.965, mixed 0.942 / 0.950 / 0.956, textured 0.940 / 0.946 /
+        0.951, fullres 0.952 / 0.955 / 0.959, sand 0.963 / 0.963 / 0.965, dense 0.839 / 0.846 /
+        0.850, seed 0.737 / 0.724 / 0.724; the same frames JPEG-compressed at quality 85 (snow,
+        mixed, textured, fullres, sand): 0.926 / 0.930 / 0.926, 0.934 / 0.933 / 0.926, 0.936 /
+        0.939 / 0.942, 0.949 / 0.950 / 0.945, 0.958 / 0.949 / 0.933, and at 75 0.15 loses
+        0.005-0.022 against the mean, 0.33 0.03-0.065 (compression's ringing and block edges are
+        bright single pixels the maximum keeps).  0.15 keeps most of the gain on the camera's
+        raw frames and little of the loss on compressed files; 0.5-1 gained no more on clean
+        frames and cost the seed tank 0.03-0.07.  White noise's bright tail stays as the
+        dark-side noise estimate expects (4 units at 0.33: 4.1e-5 against 3.2e-5 for the mean).
+        In the twin (12 scenes) at 12 cm with probing 0 / 0.15 / 0.33 removed 0.758 / 0.749 /
+        0.767, the same within its noise.  +50 us a frame at 800x600.  Needs sub-pixel view
+        following: a block's maximum depends on where the texture falls in it.
     channel: the plane of a colour (BGR) frame the detector works on (a grey or Y frame is used
         as it is): ``luma`` (default: the Y the camera's YUV stream gives, so files and camera
         see the same), ``green``, ``red``, ``blue`` or ``min`` (darkest of the three).  Luma
@@ -147,7 +154,7 @@ class ContrastParams:
     channel: str = "luma"
     texture: int = 28
     core: float = 0.5
-    point: float = 0.33
+    point: float = 0.15
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.point) and 0 <= self.point <= 1):
