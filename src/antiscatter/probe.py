@@ -27,6 +27,7 @@ the projector position of p moves along a straight line as w grows.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -104,7 +105,7 @@ class DepthProbe:
             raise ValueError(f"prior_samples: got {self.prior_samples}, allowed >= 0 (0 = no prior)")
         if not 0 < self.prior_coverage <= 1:
             raise ValueError(f"prior_coverage: got {self.prior_coverage}, allowed 0 < coverage <= 1")
-        self._samples: list[tuple[float, float]] = []  # (log brightness, log inverse depth), oldest first
+        self._samples: deque[tuple[float, float]] = deque(maxlen=self.prior_samples)  # (log brightness, log w)
         self._fit: tuple[float, float, float, float] | None = None  # slope, intercept, residual band
         self.w_far, self.w_near = 1.0 / self.far_m, 1.0 / self.near_m
         self._h_far = np.asarray(self.mapping_at(self.far_m), np.float64)
@@ -155,7 +156,7 @@ class DepthProbe:
     def prior(self, brightness: float) -> tuple[float, float]:
         """The inverse-depth interval a new particle of this brightness (lit) is searched over:
         what settled tracks of that brightness had (see ``prior_samples``), else near..far."""
-        if len(self._samples) < max(self.MIN_PRIOR, 1) or self.prior_samples == 0 or not brightness > 0:
+        if len(self._samples) < max(self.MIN_PRIOR, 1) or not brightness > 0:
             return self.w_far, self.w_near
         if self._fit is None:
             x, y = np.array(self._samples).T
@@ -175,11 +176,9 @@ class DepthProbe:
 
     def _learn(self, track: _Track) -> None:
         """A settled track's (brightness, depth) for the prior."""
-        if self.prior_samples == 0 or track.lit <= 0:
-            return
-        self._samples.append((math.log(track.lit), math.log((track.lo + track.hi) / 2)))
-        del self._samples[:-self.prior_samples]
-        self._fit = None
+        if track.lit > 0:  # none are kept with prior_samples 0
+            self._samples.append((math.log(track.lit), math.log((track.lo + track.hi) / 2)))
+            self._fit = None
 
     def _hit(self, track: _Track, probe: tuple[float, float]) -> None:
         lo, hi = max(track.lo, probe[0]), min(track.hi, probe[1])

@@ -287,6 +287,8 @@ class _Pipeline:
         self.config = config
         self.detector = detector
         self.tracker = tracker
+        if tracker is not None:
+            tracker.set_frame_width(source.size[0])  # its motion settings are for 800 px wide frames
         self.outputs = outputs
         self.metrics_writer = metrics_writer
         self.detections_writer = detections_writer
@@ -355,7 +357,6 @@ class _Pipeline:
         self.recorded: list[dict[str, float]] = []
         self._closers: list[threading.Thread] = []
         self._dark: np.ndarray | None = None
-        self.tracker_scaled = False
 
     def process(self, frame: Any, t0: int, t1: int, found: Detections | None = None,
                 stage_ns: list[int] | None = None) -> _Record:
@@ -377,9 +378,6 @@ class _Pipeline:
             t_track = clock()
             captured = (frame.timestamp_ns / 1e9 if self.frame_interval is None
                         else frame.index * self.frame_interval)
-            if not self.tracker_scaled and getattr(frame, "image", None) is not None:
-                self.tracker.set_frame_width(frame.image.shape[1])  # its motion settings are for 800 px
-                self.tracker_scaled = True
             tracks = self.tracker.update(detections, captured, unlit=self.unlit_ids)
             track_ids = tracks.detection_ids
             prediction = self.tracker.snapshot()

@@ -316,7 +316,7 @@ class BackgroundModel:
         self._updates = np.zeros(max(self.bands, 1), np.int64)
         self._next = 0
         self._frames = 0
-        self._profiles: list | None = None  # the background's brightness profiles (follow)
+        self._profiles: tuple | None = None  # the background opened at half resolution, its profiles (follow)
         self._profiled = 0  # frames since they were taken
 
     def _rows(self, band: int, height: int) -> tuple[int, int, int, int]:
@@ -392,15 +392,15 @@ class BackgroundModel:
         sub = (slice(None, None, 2), slice(None, None, 2))
         if self._profiles is None or self._profiled >= self.bands:
             base = cv2.morphologyEx(self.base[sub], cv2.MORPH_OPEN, _K3)
-            self._profiles = [base] + [cv2.reduce(base, axis, cv2.REDUCE_AVG, dtype=cv2.CV_32F).ravel()
-                                       for axis in (0, 1)]
+            self._profiles = (base, [cv2.reduce(base, axis, cv2.REDUCE_AVG, dtype=cv2.CV_32F).ravel()
+                                     for axis in (0, 1)])
             self._profiled = 0
         self._profiled += 1
-        opened, frame = self._profiles[0], cv2.morphologyEx(half[sub], cv2.MORPH_OPEN, _K3)
+        opened, profiles = self._profiles  # the background opened, and its column and row profiles
+        frame = cv2.morphologyEx(half[sub], cv2.MORPH_OPEN, _K3)
         # 0: column profile -> x shift; 1: row profile -> y shift
-        shifts = [_profile_shift(self._profiles[1 + axis], cv2.reduce(frame, axis, cv2.REDUCE_AVG,
-                                                                    dtype=cv2.CV_32F).ravel(), MAX_FOLLOW // 2)
-                  for axis in (0, 1)]
+        shifts = [_profile_shift(profiles[axis], cv2.reduce(frame, axis, cv2.REDUCE_AVG, dtype=cv2.CV_32F).ravel(),
+                                 MAX_FOLLOW // 2) for axis in (0, 1)]
         if (shifts[0] is None) != (shifts[1] is None):
             # a pan along one axis changes the other profile as ground enters and leaves the view:
             # that one is taken again over the ground both views share
@@ -603,7 +603,7 @@ def measure(components: dict[str, np.ndarray], excess: np.ndarray, noise: np.nda
     cx = np.bincount(lab, weights=weight * x, minlength=n) / wsum
     cy = np.bincount(lab, weights=weight * y, minlength=n) / wsum
     d2 = (x - cx[lab]) ** 2 + (y - cy[lab]) ** 2
-    order, starts = _groups(lab)
+    order, starts = _groups(lab, n)
     (peak,) = _group_max(lab, n, weight, groups=(order, starts))
     if core:  # the particle is where its light is at least `core` of its peak, not all its halo
         d2 = np.where(weight >= core * peak[lab], d2, 0.0)  # the peak itself is always in
@@ -701,10 +701,10 @@ _K5 = np.ones((5, 5), np.uint8)
 _MIN_CORE = 20
 
 
-def _groups(lab: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(order, starts): the permutation that sorts ``lab`` (stable; 16-bit labels sort by radix)
-    and where each label's run starts in the sorted order."""
-    keys = lab.astype(np.uint16) if len(lab) and lab.max() < 65536 else lab
+def _groups(lab: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(order, starts): the permutation that sorts ``lab`` (labels 0..n-1; stable, and 16-bit
+    labels sort by radix) and where each label's run starts in the sorted order."""
+    keys = lab.astype(np.uint16) if n <= 65536 else lab
     order = np.argsort(keys, kind="stable")
     sorted_lab = lab[order]
     change = np.empty(len(lab), bool)
@@ -719,7 +719,7 @@ def _group_max(lab: np.ndarray, n: int, *values: np.ndarray,
     (np.maximum.at is unbuffered and slow); ``groups``: :func:`_groups` of ``lab`` if known."""
     if len(lab) == 0:
         return [np.zeros(n) for _ in values]
-    order, starts = groups if groups is not None else _groups(lab)
+    order, starts = groups if groups is not None else _groups(lab, n)
     present = lab[order[starts]]
     out = []
     for v in values:

@@ -181,7 +181,7 @@ def evaluate_tracking(frames_iter, detector: Detector, m: Matching, *, fps: floa
     dt = 1.0 / fps
     for index, image, truth in frames_iter:
         found = detector.detect(image)
-        if index == 0 or tracker.timestamp is None:
+        if tracker.timestamp is None:  # the first frame: its motion settings are for 800 px wide ones
             tracker.set_frame_width(image.shape[1])
         tracks = tracker.update(found, index * dt)
         score.add(truth.ids, truth.centres, truth.radii, truth.counted, found.centres, tracks.detection_ids)

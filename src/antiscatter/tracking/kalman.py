@@ -247,7 +247,7 @@ class Tracker:
         detection_ids = np.full(d, -1, np.int64)
         if len(matches):
             t, k = matches[:, 0], matches[:, 1]
-            stale = t[self.misses[t] > self.max_misses]
+            stale = t[self._lost()[t]]
             self._correct(t, k, detections)
             detection_ids[k] = self.ids[t]
             if len(stale):
@@ -302,16 +302,19 @@ class Tracker:
         and made the assignment problems large (300 tracks: 0.38 -> 0.46 ms an update with a
         dozen lost ones among them)."""
         gates = self._gates(self.pp)
-        lost = self.misses > self.max_misses
-        if not lost.any():
+        is_lost = self._lost()
+        if not is_lost.any():
             return match(self.x[:, :2], gates, detections.centres)
-        live = np.flatnonzero(~lost)
-        lost = np.flatnonzero(lost)
+        live, lost = np.flatnonzero(~is_lost), np.flatnonzero(is_lost)
         first, free_live, free_dets = match(self.x[live, :2], gates[live], detections.centres)
         second, free_lost, free_dets2 = match(self.x[lost, :2], gates[lost], detections.centres[free_dets])
         matches = np.concatenate([np.column_stack([live[first[:, 0]], first[:, 1]]),
                                   np.column_stack([lost[second[:, 0]], free_dets[second[:, 1]]])]).astype(np.int64)
         return matches, np.sort(np.concatenate([live[free_live], lost[free_lost]])), free_dets[free_dets2]
+
+    def _lost(self) -> np.ndarray:
+        """(N,) bool: tracks missed more than ``max_misses`` times in a row, kept for their id only."""
+        return self.misses > self.max_misses
 
     def _append(self, rows: dict[str, np.ndarray]) -> None:
         """Add tracks: one array per name in ``_FIELDS``, rows in the same order."""
