@@ -33,7 +33,9 @@ def test_bisection_finds_a_particles_depth_from_lit_and_dimmed_exposures():
     assert (a, b) == (track.lo, track.hi)
     p.observe(Detections.empty(), {7: (a, b)}, np.array([7]))
     assert (p.tracks[7].lo, p.tracks[7].hi) == (a, b)
-    # the settled hole missed (the particle came back fully lit): the search starts again
+    # the settled hole missed (the particle came back fully lit) twice in a row: the search starts again
+    p.observe(Detections(centre, [4.0], scores=[lit], track_ids=[7]), {7: (a, b)}, np.empty(0))
+    assert (p.tracks[7].lo, p.tracks[7].hi) == (a, b)
     p.observe(Detections(centre, [4.0], scores=[lit], track_ids=[7]), {7: (a, b)}, np.empty(0))
     assert (p.tracks[7].lo, p.tracks[7].hi) == (p.w_far, p.w_near)
 
@@ -138,16 +140,33 @@ def test_brightness_learnt_from_settled_depths_narrows_a_new_particles_search():
         p.observe(Detections(centre, [3.0], scores=[lit], track_ids=[99]), {}, np.empty(0))
         assert (p.tracks[99].lo, p.tracks[99].hi) == (lo, hi)  # where a new track starts
         p.forget(np.array([]))
-    # a settled hole that misses starts again from the prior once, then from the whole range
+    # a settled hole that misses twice in a row starts again from the prior once, then from the
+    # whole range
     z = 1.0
     lit = 40.0 * 0.8 / z ** 2
     _settle(p, 50, centre, 1 / z, lit)
     for expected in (p.prior(lit), full):
         a, b = p.probes(Detections(centre, [3.0], track_ids=[50]))[50]
         assert (a, b) == (p.tracks[50].lo, p.tracks[50].hi)  # settled
+        for _ in range(DepthProbe.RESTART - 1):  # a single miss may be noise: the hole stays
+            p.observe(Detections(centre, [3.0], scores=[lit], track_ids=[50]), {50: (a, b)}, np.empty(0))
+            assert (p.tracks[50].lo, p.tracks[50].hi) == (a, b)
         p.observe(Detections(centre, [3.0], scores=[lit], track_ids=[50]), {50: (a, b)}, np.empty(0))
         assert (p.tracks[50].lo, p.tracks[50].hi) == expected
         _settle(p, 50, centre, 1 / z, lit)
+
+
+def test_a_settled_hole_that_misses_once_between_hits_stays():
+    p = probe()
+    centre = np.array([[400.0, 300.0]])
+    _settle(p, 1, centre, 1 / 0.8, 100.0)
+    settled = (p.tracks[1].lo, p.tracks[1].hi)
+    for seen in (100.0, 20.0, 100.0, 20.0):  # miss, hit, miss, hit: never two misses in a row
+        p.observe(Detections(centre, [3.0], scores=[seen], track_ids=[1]), {1: settled}, np.empty(0))
+        assert (p.tracks[1].lo, p.tracks[1].hi) == settled
+    p.observe(Detections(centre, [3.0], scores=[100.0], track_ids=[1]), {1: settled}, np.empty(0))
+    p.observe(Detections(centre, [3.0], scores=[100.0], track_ids=[1]), {1: settled}, np.empty(0))
+    assert (p.tracks[1].lo, p.tracks[1].hi) != settled  # two in a row: searched again
 
 
 def test_a_depth_is_learnt_only_once_its_settled_hole_has_held_the_particle_twice():
