@@ -170,6 +170,40 @@ def test_background_model_updates_one_band_per_frame_after_the_warm_up():
     assert (model.base > before).all()  # one cycle of bands covers the frame
 
 
+@pytest.mark.parametrize("cap", [True, False])
+def test_pixels_with_a_wrong_background_do_not_take_their_cells_noise(cap, monkeypatch):
+    # where particles passed all the time the background learnt some of them: after they left, those
+    # pixels are far darker than their background -- a wrong background, not noise
+    from antiscatter.detection.contrast import BackgroundModel
+
+    if not cap:
+        monkeypatch.setattr(BackgroundModel, "NOISE_CAP", 1e9)
+    rng = np.random.default_rng(4)
+
+    def frame():
+        return np.clip(np.rint(40 + rng.normal(0, 2.0, (120, 160))), 0, 255).astype(np.uint8)
+
+    model = BackgroundModel(cell=8, memory=20, bands=4)
+    model.estimate(frame())
+    none = np.zeros((120, 160), np.uint8)
+    for _ in range(BackgroundModel.WARMUP):
+        model.learn(frame(), none)
+    clean = float(np.median(model.noise))
+    assert 1.5 < clean < 2.5  # the sensor's 2 grey levels
+    wrong = np.zeros((120, 160), bool)
+    wrong[48:72:4, 64:96:4] = True  # 3 pixels of 64 in 3 x 4 cells: discs learnt, then gone
+    model.background[wrong] = 220.0
+    model.base[wrong] = 220
+    for _ in range(model.bands):  # one cycle: every band's noise measured again
+        model.estimate(frame())
+        model.learn(frame(), none)
+    cells = model.noise[6:9, 8:12]
+    if cap:
+        assert cells.max() < 1.5 * clean
+    else:  # the uncapped mean took the wrong pixels for noise (the seed tank's thresholds of 15-255)
+        assert cells.max() > 3 * clean
+
+
 def test_a_lone_pixel_needs_lone_k_noise_units():
     from antiscatter.detection.contrast import measure
 
