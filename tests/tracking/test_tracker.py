@@ -288,9 +288,11 @@ def test_a_track_in_the_dark_of_its_own_hole_lives_on_with_max_dark():
             tracker.update(Detections.empty(), f * DT, unlit=np.array([first]))
         holed = len(tracker.holes(11 * DT)) == 1
         tracks = tracker.update(Detections([[100.0 + 2 * 12, 50.0]], [3.0]), 12 * DT)
+        run.confirmed, run.vx = bool(tracks.confirmed[0]), float(tracks.velocities[0, 0]) * DT
         return holed, int(tracks.detection_ids[0]) == first
 
     assert run(10) == (True, True)  # 8 dark frames: its hole still on its path, and the particle is found again
+    assert run.confirmed and abs(run.vx - 2.0) < 0.3  # not lost while its hole was on: motion and confirmation kept
     assert run(0, keep_misses=5) == (False, False)  # expected misses count like any: no hole, no track after 5
     assert run(0) == (False, True)  # by default no hole after 5, the id kept for 12
     tracker = Tracker(max_dark=3)

@@ -313,8 +313,10 @@ class Tracker:
         return matches, np.sort(np.concatenate([live[free_live], lost[free_lost]])), free_dets[free_dets2]
 
     def _lost(self) -> np.ndarray:
-        """(N,) bool: tracks missed more than ``max_misses`` times in a row, kept for their id only."""
-        return self.misses > self.max_misses
+        """(N,) bool: tracks missed more than ``max_misses`` times in a row, kept for their id only --
+        not counting a confirmed track's misses in the dark of its own hole (``max_dark``), as for
+        its hole (:meth:`snapshot`): a track whose hole is still on is not lost."""
+        return self._unexpected(self.hits >= self.confirm_hits) > self.max_misses
 
     def _append(self, rows: dict[str, np.ndarray]) -> None:
         """Add tracks: one array per name in ``_FIELDS``, rows in the same order."""
