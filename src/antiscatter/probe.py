@@ -10,9 +10,9 @@ holes (the ``dim`` strategy) a particle under its hole still shows, at
 of a particle's remaining segment and the next exposure says whether that part
 held it (the particle dimmed, or vanished) or not (it stayed as bright as when
 lit).  Bisection over a few frames pins the hole to the particle's depth; a
-hole that stops working (the particle is lit again, twice in a row) reopens the search.  A new
-particle's search starts from the depths at which earlier particles of its
-brightness settled (the lamp's inverse-square fall-off, learnt as the dive
+hole that stops working (the particle is lit again, twice in a row) reopens
+the search.  A new particle's search starts from the depths at which earlier
+particles of its brightness settled (the lamp's inverse-square fall-off, learnt as the dive
 goes: :meth:`DepthProbe.prior`).
 With pulsed holes (the ``pulse`` strategy) the camera only looks during one
 refresh: the probe's half is shown, lifted to the dim level, then, and the
