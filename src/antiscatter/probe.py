@@ -12,8 +12,8 @@ held it (the particle dimmed, or vanished) or not (it stayed as bright as when
 lit).  Bisection over a few frames pins the hole to the particle's depth; a
 hole that stops working (the particle is lit again, twice in a row) reopens
 the search.  A new particle's search starts from the depths at which earlier
-particles of its brightness settled (the lamp's inverse-square fall-off, learnt as the dive
-goes: :meth:`DepthProbe.prior`).
+particles of its brightness settled (the lamp's inverse-square fall-off,
+learnt as the dive goes: :meth:`DepthProbe.prior`).
 With pulsed holes (the ``pulse`` strategy) the camera only looks during one
 refresh: the probe's half is shown, lifted to the dim level, then, and the
 whole remaining interval (:meth:`DepthProbe.intervals`) is dark the rest of the
