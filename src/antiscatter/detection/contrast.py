@@ -601,7 +601,8 @@ def label(mask: np.ndarray) -> dict[str, np.ndarray]:
 
 def measure(components: dict[str, np.ndarray], excess: np.ndarray, noise: np.ndarray, *,
             halo: float, max_radius: float, split: bool, frame_width: int, factor: int = 2,
-            lone_k: float = 0.0, seen: np.ndarray | None = None, core: float = 0.0) -> Detections:
+            lone_k: float = 0.0, seen: np.ndarray | None = None, core: float = 0.0,
+            full: tuple[np.ndarray, np.ndarray] | None = None) -> Detections:
     """Centres (brightness-weighted) and covering radii of the components, in full-resolution pixels.
 
     The radius reaches the farthest pixel whose excess is at least ``core`` of the component's
@@ -619,7 +620,7 @@ def measure(components: dict[str, np.ndarray], excess: np.ndarray, noise: np.nda
     lab, x, y = components["labels"], components["x"], components["y"]
     weight = np.maximum(excess[y, x].astype(np.float64), 1e-3)
     if split:
-        lab, n = _split_peaks(lab, x, y, weight, excess, noise, n)
+        lab, n = _split_peaks(lab, x, y, weight, excess, noise, n, full=full if factor == 2 else None)
     wsum = np.bincount(lab, weights=weight, minlength=n)
     cx = np.bincount(lab, weights=weight * x, minlength=n) / wsum
     cy = np.bincount(lab, weights=weight * y, minlength=n) / wsum
@@ -648,7 +649,7 @@ def measure(components: dict[str, np.ndarray], excess: np.ndarray, noise: np.nda
 
 
 def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, excess: np.ndarray,
-                 noise: np.ndarray, n: int) -> tuple[np.ndarray, int]:
+                 noise: np.ndarray, n: int, full: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, int]:
     """Split components that hold two or more particles (touching or overlapping).
 
     Within each component of 8 pixels or more, the local maxima (5x5) of the
@@ -678,7 +679,7 @@ def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarr
     counts = np.bincount(kept_c, minlength=n)
     necked = _necked(pl, px, py, weight[idx], n, counts < 2)
     if len(necked):
-        flat_c, flat_y, flat_x = _split_flat(pl, px, py, weight[idx], n, necked)
+        flat_c, flat_y, flat_x = _split_flat(pl, px, py, weight[idx], n, necked, full)
         if len(flat_c):
             keep = ~np.isin(kept_c, flat_c)
             kept_c = np.concatenate([kept_c[keep], flat_c])
@@ -824,32 +825,70 @@ def _separate(comp: np.ndarray, py: np.ndarray, px: np.ndarray, value: np.ndarra
 
 
 def _split_flat(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, n: int,
-                comps: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                comps: np.ndarray, full: tuple[np.ndarray, np.ndarray] | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Peaks of flat or saturated components by shape, all of ``comps`` at once: touching discs
     with one plateau have two distance-transform peaks with a neck between them.  The core of
     each (its pixels above half its peak: the halo would hide the neck) goes into one image,
     whose distance transform's local maxima (5x5) are kept by :func:`_separate` as the
     intensity peaks are, a dip of a quarter of the peak's height or 1 px.  Returns (component,
     y, x) of the peaks of the components that have two or more (one call where a loop over the
-    components cost ~100 us each: the seed tank has ~8 such components a frame)."""
+    components cost ~100 us each: the seed tank has ~8 such components a frame).
+
+    full: (the full-resolution frame, this frame's working background) when the working image is
+    2x2 blocks of it: the shape is then taken at full resolution, each working pixel standing
+    for its block (the excess over the background read from the frame).  At working resolution
+    the report's white discs (radius 2-6 px, 1-3 working px) left hardly a neck to find: F1 on
+    the seed tank 0.743 -> 0.764, the other scenes within 0.001; +0.2-0.3 ms a frame there."""
     wanted = np.zeros(n, bool)
     wanted[comps] = True
     sel = wanted[lab]
     lab, x, y, weight = lab[sel], x[sel], y[sel], weight[sel]
+    if full is not None:  # each working pixel's 2x2 block of the frame
+        grey, base = full
+        x = (2 * x[:, None] + _BLOCK_X).ravel()
+        y = (2 * y[:, None] + _BLOCK_Y).ravel()
+        lab = np.repeat(lab, 4)
+        inside = (x < grey.shape[1]) & (y < grey.shape[0])
+        lab, x, y = lab[inside], x[inside], y[inside]
+        weight = grey[y, x].astype(np.float64) - base[y // 2, x // 2]
     top, = _group_max(lab, n, weight)
     core = weight >= 0.5 * top[lab]
     lab, x, y = lab[core], x[core], y[core]
-    x0, y0 = x.min() - 3, y.min() - 3  # a margin of background: the transform and the 5x5 max
-    image = np.zeros((y.max() - y0 + 4, x.max() - x0 + 4), np.uint8)
-    cx, cy = x - x0, y - y0
-    image[cy, cx] = 1
+    (cx, cy), (shift_x, shift_y), image = _strip(lab, x, y, n, wanted)
     distance = cv2.distanceTransform(image, cv2.DIST_L2, 3)
     value = distance[cy, cx]
     peak = value >= cv2.dilate(distance, _K5)[cy, cx]
     kept_c, kept_y, kept_x = _separate(lab[peak], cy[peak], cx[peak], value[peak].astype(np.float64),
                                        distance, np.full(int(peak.sum()), 1.0 / 3.0))
     several = np.bincount(kept_c, minlength=n)[kept_c] >= 2
-    return kept_c[several], kept_y[several] + y0, kept_x[several] + x0
+    kept_c = kept_c[several]
+    kept_y, kept_x = kept_y[several] - shift_y[kept_c], kept_x[several] - shift_x[kept_c]
+    if full is not None:  # kept peaks are 3 px or more apart: each lands in a working pixel of its own
+        kept_y, kept_x = kept_y // 2, kept_x // 2
+    return kept_c, kept_y, kept_x
+
+
+_BLOCK_X = np.array([0, 1, 0, 1])
+_BLOCK_Y = np.array([0, 0, 1, 1])
+
+
+def _strip(lab: np.ndarray, x: np.ndarray, y: np.ndarray, n: int, wanted: np.ndarray):
+    """The pixels of each wanted component drawn (as 1) in a box of its own, the boxes side by
+    side in one strip with 3 px of background around each (for the distance transform and the
+    5x5 maximum): an image as large as the components, where their common bounding box spanned
+    the seed tank's whole band of discs (four times the work at full resolution).  Returns the
+    pixels' strip coordinates (x, y), each component's shift (strip = frame + shift; (n,) each)
+    and the image."""
+    right, bottom, left, top = _group_max(lab, n, x, y, -x, -y)
+    left, top = -left, -top
+    width = np.where(wanted, right - left + 4, 0).astype(np.intp)
+    shift_x = (np.cumsum(width) - width + 3 - left).astype(np.intp)
+    shift_y = (3 - top).astype(np.intp)
+    sx, sy = x + shift_x[lab], y + shift_y[lab]
+    image = np.zeros((int((bottom - top)[wanted].max()) + 7, int(width.sum()) + 4), np.uint8)
+    image[sy, sx] = 1
+    return (sx, sy), (shift_x, shift_y), image
 
 
 def build_contrast(params: ContrastParams) -> Detector:
@@ -866,7 +905,9 @@ def build_contrast(params: ContrastParams) -> Detector:
         state["factor"], state["width"] = factor, image.shape[1]
         model.cell = max(int(round(cell / factor)), 2)
         model.window = max(int(round(params.texture / factor)), 3) if params.texture else 0
-        return downsample(image, factor=factor, channel=params.channel, point=params.point)
+        grey = image if image.ndim == 2 else to_channel(image, params.channel)
+        state["grey"] = grey
+        return downsample(grey, factor=factor, channel=params.channel, point=params.point)
 
     def set_light(light: np.ndarray | None) -> None:
         state["light"] = light
@@ -888,6 +929,7 @@ def build_contrast(params: ContrastParams) -> Detector:
 
     def stage_threshold(value):
         half, reflectance, base, limit = value
+        state["base"] = base
         mask, excess = threshold_mask(half, base, limit)
         expected = state.pop("expected", None)  # for this frame only
         if expected is not None and len(expected) and params.k_expected < params.k:
@@ -909,7 +951,8 @@ def build_contrast(params: ContrastParams) -> Detector:
             seen = None
         found = measure(components, excess, model.noise, halo=params.halo, core=params.core,
                         max_radius=params.max_radius, split=params.split, frame_width=state["width"],
-                        factor=state["factor"], lone_k=params.lone_k, seen=seen)
+                        factor=state["factor"], lone_k=params.lone_k, seen=seen,
+                        full=(state["grey"], state["base"]))
         if persist_kernel is not None:
             state["seen"] = cv2.dilate(mask, persist_kernel)
         return reflectance, mask, found
