@@ -637,7 +637,8 @@ def measure(components: dict[str, np.ndarray], excess: np.ndarray, noise: np.nda
     lab, x, y = components["labels"], components["x"], components["y"]
     weight = np.maximum(excess[y, x].astype(np.float64), 1e-3)
     if split:
-        lab, n = _split_peaks(lab, x, y, weight, excess, noise, n, full=full if factor == 2 else None, fine=fine)
+        lab, n = _split_peaks(lab, x, y, weight, excess, noise, n, full=full if factor == 2 else None,
+                              fine=fine)
     wsum = np.bincount(lab, weights=weight, minlength=n)
     cx = np.bincount(lab, weights=weight * x, minlength=n) / wsum
     cy = np.bincount(lab, weights=weight * y, minlength=n) / wsum
@@ -671,12 +672,13 @@ def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarr
     """Split components that hold two or more particles (touching or overlapping).
 
     Within each component of 8 pixels or more, the local maxima (3x3) of the
-    excess smoothed by the 3x3 binomial kernel are its candidate peaks.  A peak other than the component's highest
-    is a separate particle when its nearest higher peak is at least 2 px away
-    and the excess on the segment between them dips below it by both a quarter
-    of its height and 3 noise units (so a narrow neck counts).  This runs on
-    all components at once, without Python loops.  ``fine=False``: the maxima
-    (5x5) of the 3x3-summed excess, at least 3 px apart (see :func:`measure`).
+    excess smoothed by the 3x3 binomial kernel are its candidate peaks.  A peak
+    other than the component's highest is a separate particle when its nearest
+    higher peak is at least 2 px away and the excess on the segment between them
+    dips below it by both a quarter of its height and 3 noise units (so a narrow
+    neck counts).  This runs on all components at once, without Python loops.
+    ``fine=False``: the maxima (5x5) of the 3x3-summed excess, at least 3 px
+    apart (see :func:`measure`).
     Flat or saturated particles have no intensity dip; for components without
     an intensity split whose core (the pixels above half the peak) has
     ``_MIN_CORE`` pixels or more, the same test runs on the distance transform of
@@ -690,7 +692,7 @@ def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarr
         return lab, n
     idx = np.flatnonzero(inside)
     px, py, pl = x[idx], y[idx], lab[idx]
-    if fine:  # the excess smoothed by the 3x3 binomial kernel (exact sums, x16; float32 is the fast path), its 3x3 maxima
+    if fine:  # 3x3 maxima of the binomially smoothed excess (exact sums x16: float32 is OpenCV's fast path)
         smooth_img = cv2.sepFilter2D(excess, cv2.CV_32F, _BINOMIAL, _BINOMIAL)
         s = smooth_img[py, px]
         is_max = s >= cv2.dilate(smooth_img, _K3)[py, px]
@@ -703,7 +705,8 @@ def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarr
     maxima = np.bincount(pl[is_max], minlength=n)
     peaks = np.flatnonzero(is_max & (maxima[pl] >= 2))
     kept_c, kept_y, kept_x = _separate(pl[peaks], py[peaks], px[peaks], value[peaks], excess,
-                                       noise_at(noise, px[peaks], py[peaks], excess.shape), min_d2=4 if fine else 9)
+                                       noise_at(noise, px[peaks], py[peaks], excess.shape),
+                                       min_d2=4 if fine else 9)
     counts = np.bincount(kept_c, minlength=n)
     necked = _necked(pl, px, py, weight[idx], n, counts < 2)
     if len(necked):
@@ -818,8 +821,8 @@ def _separate(comp: np.ndarray, py: np.ndarray, px: np.ndarray, value: np.ndarra
     """The peaks that stand apart, for all components at once: (component, y, x) of each kept peak.
 
     The highest peak of each component is kept; another is kept when its
-    nearest higher peak (same component) is at least sqrt(min_d2) px away and the excess
-    on the segment between them dips below its own by max(value / 4, 3 sigma).
+    nearest higher peak (same component) is at least sqrt(min_d2) px away and the
+    excess on the segment between them dips below its own by max(value / 4, 3 sigma).
     """
     if len(comp) == 0:
         return comp, py, px
