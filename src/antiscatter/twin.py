@@ -80,15 +80,15 @@ STRATEGIES = ("none", "dim", "pulse", "flash", "coast")
 #: frames the system needs to start up (the detector's 16-frame background warm-up, the first
 #: tracks' confirmation); the ``_steady`` figures leave them out (at most half a run)
 SETTLE_FRAMES = 20
+#: the exposure the simulator's brightness is set for (seconds); the twin scales the light a
+#: camera frame gathers by exposure / this
+REFERENCE_EXPOSURE_S = 0.004
+MAPPINGS = ("identity", "calibrated", "range", "probe")
 
 
 def steady_from(frames: int) -> int:
     """The first frame of a run of ``frames`` that the ``_steady`` figures count."""
     return min(SETTLE_FRAMES, frames // 2)
-#: the exposure the simulator's brightness is set for (seconds); the twin scales the light a
-#: camera frame gathers by exposure / this
-REFERENCE_EXPOSURE_S = 0.004
-MAPPINGS = ("identity", "calibrated", "range", "probe")
 
 
 @dataclass(frozen=True)

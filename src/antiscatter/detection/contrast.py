@@ -692,21 +692,17 @@ def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarr
         return lab, n
     idx = np.flatnonzero(inside)
     px, py, pl = x[idx], y[idx], lab[idx]
-    if fine:  # 3x3 maxima of the binomially smoothed excess (exact sums x16: float32 is OpenCV's fast path)
-        smooth_img = cv2.sepFilter2D(excess, cv2.CV_32F, _BINOMIAL, _BINOMIAL)
-        s = smooth_img[py, px]
-        is_max = s >= cv2.dilate(smooth_img, _K3)[py, px]
-        value = s.astype(np.float64) / 16.0
+    # exact sums, so equal neighbours tie exactly: the binomial's x16 in float32 (OpenCV's fast path)
+    if fine:
+        smooth_img, window, weights, min_d2 = cv2.sepFilter2D(excess, cv2.CV_32F, _BINOMIAL, _BINOMIAL), _K3, 16.0, 4
     else:
-        smooth_img = cv2.boxFilter(excess, cv2.CV_16U, (3, 3), normalize=False)  # exact sums: no rounding ties
-        s = smooth_img[py, px]
-        is_max = s >= cv2.dilate(smooth_img, _K5)[py, px]
-        value = s / 9.0
+        smooth_img, window, weights, min_d2 = cv2.boxFilter(excess, cv2.CV_16U, (3, 3), normalize=False), _K5, 9.0, 9
+    s = smooth_img[py, px]
+    is_max = s >= cv2.dilate(smooth_img, window)[py, px]
     maxima = np.bincount(pl[is_max], minlength=n)
     peaks = np.flatnonzero(is_max & (maxima[pl] >= 2))
-    kept_c, kept_y, kept_x = _separate(pl[peaks], py[peaks], px[peaks], value[peaks], excess,
-                                       noise_at(noise, px[peaks], py[peaks], excess.shape),
-                                       min_d2=4 if fine else 9)
+    kept_c, kept_y, kept_x = _separate(pl[peaks], py[peaks], px[peaks], s[peaks].astype(np.float64) / weights,
+                                       excess, noise_at(noise, px[peaks], py[peaks], excess.shape), min_d2=min_d2)
     counts = np.bincount(kept_c, minlength=n)
     necked = _necked(pl, px, py, weight[idx], n, counts < 2)
     if len(necked):
