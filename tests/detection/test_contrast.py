@@ -204,6 +204,35 @@ def test_pixels_with_a_wrong_background_do_not_take_their_cells_noise(cap, monke
         assert cells.max() > 3 * clean
 
 
+@pytest.mark.parametrize("level", [20.0, 20.25, 20.5, 20.75])
+def test_the_noise_estimate_does_not_depend_on_where_the_level_falls_between_grey_levels(level):
+    # a low-noise sensor: after 2x2 pooling the working image's noise is well under a grey level,
+    # so a background rounded to whole grey levels is off by a large part of it (the estimate was
+    # 0.28-0.85 for a true 0.59 across these levels; false alarms at level 20, sigma 2: 3-10 a frame)
+    from antiscatter.detection.contrast import BackgroundModel
+
+    rng = np.random.default_rng(1)
+    model = BackgroundModel(cell=8, memory=20)
+    none = np.zeros((300, 400), np.uint8)
+    for _ in range(BackgroundModel.WARMUP + 4):
+        frame = np.clip(np.rint(level + rng.normal(0, 1.0, (600, 800))), 0, 255).astype(np.uint8)
+        half = downsample(frame, factor=2, point=0.15)
+        model.estimate(half)
+        model.learn(half, none)
+    true = float(np.std(half))
+    assert 0.8 * true < float(np.median(model.noise)) < 1.25 * true
+
+
+def test_plain_noise_at_a_whole_grey_level_gives_almost_no_detections():
+    rng = np.random.default_rng(0)
+    detector = make_detector("contrast")
+    counts = []
+    for i in range(30):
+        frame = np.clip(np.rint(20 + rng.normal(0, 2.0, (600, 800))), 0, 255).astype(np.uint8)
+        counts.append(len(detector.detect(frame)))
+    assert counts[0] <= 2 and np.mean(counts[1:]) < 1.0
+
+
 def test_a_lone_pixel_needs_lone_k_noise_units():
     from antiscatter.detection.contrast import measure
 
