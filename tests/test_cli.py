@@ -107,8 +107,8 @@ def _bad_inputs(tmp_path):
     badtype.write_text("[pattern]\nwidth = 'wide'\n")
     return [
         (["run", str(tmp_path / "missing")], "no such file or folder"),
-        (["run", str(empty)], "no frames named <int>.png"),
-        (["run", str(notimg)], "0.png: not a readable PNG image"),
+        (["run", str(empty)], "no frames in this folder; allowed: <int>.png files, or images"),
+        (["run", str(notimg)], "0.png: not a readable image"),
         (["run", str(junk)], "junk.mp4: cannot be"),
         (["run", str(video), "--crop", "0:100,0:10"], "outside the 64x48 frame"),
         (["run", "--detector", "magic"], "unknown detector 'magic'; allowed: contrast, seed"),
@@ -174,7 +174,7 @@ def test_source_failing_mid_run_keeps_files_valid(tmp_path):
     result = antiscatter("run", str(frames), "--output", "none", "--output", "files:p.mkv",
                          "--metrics", "m.csv", cwd=tmp_path)
     assert result.returncode == 2
-    assert "3.png: not a readable PNG image" in result.stderr
+    assert "3.png: not a readable image" in result.stderr
     assert len(list(csv.reader((tmp_path / "m.csv").open()))) == 4
     with av.open(str(tmp_path / "p.mkv")) as container:
         assert sum(1 for _ in container.decode(video=0)) == 3

@@ -52,7 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter)
     run.add_argument("source", nargs="?", default=None,
                      help="sim (default: the built-in simulator), camera (Picamera2), webcam:N, "
-                          "a folder of <int>.png frames, or a video file")
+                          "a folder of frames (<int>.png, or images named in order: png, jpg, tif, bmp), or a video file")
     run.add_argument("--config", metavar="FILE.toml", help="TOML file with [source], [detector], "
                      "[detector.NAME], [pattern], [output], [run] sections; flags override it")
     g = run.add_argument_group("source")
@@ -146,19 +146,25 @@ def build_parser() -> argparse.ArgumentParser:
     ev = commands.add_parser(
         "evaluate", help="accuracy against ground truth: precision, recall, F1, errors, cancellation",
         description="Score detections against ground truth. Inputs, one of: --truth CSV --detections CSV; "
-                    "a simulator output FOLDER (runs --detector; pixel metrics where masks/ exist); "
+                    "a SOURCE -- a simulator output folder (runs --detector; pixel metrics where masks/ exist), "
+                    "or your own annotated frames (a folder of images or a video file) with --truth CSV "
+                    "(frame,x,y[,radius][,id]: frames numbered from 0 in order); "
                     "--degraded/--clean real image pairs (files or folders with equal names); --scenario NAME "
                     "(generated in memory); --catalogue (every detector on every catalogued scenario and the "
                     "real images: writes the scoreboard).",
         epilog="Examples:\n"
                "  antiscatter evaluate --truth out/truth.csv --detections d.csv --json\n"
                "  antiscatter evaluate out --detector seed --plot pr.png\n"
+               "  antiscatter evaluate dive.mkv --truth annotations.csv --min-gate 4 --track\n"
                "  antiscatter evaluate --degraded ../shared/data/msrb/174710351_task1.png "
                "--clean ../shared/data/msrb/174710351_orig.png\n"
                "  antiscatter evaluate --catalogue --data ../shared/data --report docs/scoreboard.md",
         formatter_class=argparse.RawDescriptionHelpFormatter)
-    ev.add_argument("folder", nargs="?", help="a simulator output folder (frames, truth.csv, masks/)")
-    ev.add_argument("--truth", metavar="CSV", help="the simulator's truth.csv")
+    ev.add_argument("folder", nargs="?", metavar="SOURCE",
+                    help="a simulator output folder (frames, truth.csv, masks/), or a folder of frames or a "
+                         "video file with --truth")
+    ev.add_argument("--truth", metavar="CSV", help="truth: the simulator's truth.csv, or frame,x,y[,radius][,id] "
+                    "(hand annotations; without radius a detection matches within --min-gate)")
     ev.add_argument("--detections", metavar="CSV", help="frame,x,y,radius as 'run --detections' writes")
     ev.add_argument("--degraded", metavar="PATH", help="real image(s) with particles")
     ev.add_argument("--clean", metavar="PATH", help="the same image(s) without particles")
@@ -170,7 +176,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "when it exists)")
     ev.add_argument("--report", metavar="FILE.md", default="docs/scoreboard.md", help="scoreboard path "
                     "(default docs/scoreboard.md)")
-    ev.add_argument("--frames", type=int, help="at most N frames per scenario")
+    ev.add_argument("--frames", type=int, help="at most N frames per scenario or SOURCE")
     ev.add_argument("--twin-frames", type=int, default=60, help="frames per closed-loop twin run for the "
                     "scoreboard's twin table (0 = leave it out; default 60)")
     ev.add_argument("--twin-seeds", type=int, default=3, help="scenes (seeds 1..N) the twin table averages "
@@ -192,9 +198,12 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--rise", type=float, default=20.0, help="real pairs: particle where max-channel "
                     "|degraded - clean| exceeds this (default 20)")
     ev.add_argument("--min-area", type=int, default=3, help="real pairs: smallest particle region, px (default 3)")
-    ev.add_argument("--track", action="store_true", help="with --scenario: also run the tracker and report "
-                    "MOTA, IDF1, identity switches, fragmentation and prediction error at +1..+3 frames (a "
-                    "detections CSV with a track_id column gets the tracking figures by itself)")
+    ev.add_argument("--track", action="store_true", help="with --scenario or a SOURCE whose truth has ids: also "
+                    "run the tracker and report MOTA, IDF1, identity switches, fragmentation and prediction "
+                    "error at +1..+3 frames (a detections CSV with a track_id column gets the tracking "
+                    "figures by itself)")
+    ev.add_argument("--fps", type=float, help="frame rate of a SOURCE for --track (default: the video's, "
+                    "else 60)")
     ev.add_argument("--json", action="store_true", help="print the results as JSON")
     ev.add_argument("--csv", metavar="FILE", help="write per-frame figures")
     ev.add_argument("--plot", metavar="FILE.png", help="precision-recall over the threshold and errors")
@@ -321,16 +330,18 @@ def _evaluate(args: argparse.Namespace) -> int:
     import json
     from pathlib import Path
 
-    from .evaluate import Matching, evaluate_folder, evaluate_pairs, summarise
+    from .evaluate import Matching, evaluate_pairs, summarise
     from .evaluate.reference import msrb_pairs, pair_files
     from .evaluate.report import format_summary, plot_evaluation, scoreboard, sweep_detector, write_frame_csv
     from .simulate.catalogue import load_catalogue
 
-    modes = [bool(args.truth or args.detections), bool(args.folder), bool(args.degraded or args.clean),
-             bool(args.scenario), bool(args.catalogue)]
+    modes = [bool(args.detections or (args.truth and not args.folder)), bool(args.folder),
+             bool(args.degraded or args.clean), bool(args.scenario), bool(args.catalogue)]
     if sum(modes) != 1:
-        raise UsageError("give exactly one input: --truth with --detections, a FOLDER, --degraded with "
-                         "--clean, --scenario NAME, or --catalogue")
+        raise UsageError("give exactly one input: --truth with --detections, a SOURCE (with --truth unless it "
+                         "is a simulator output folder), --degraded with --clean, --scenario NAME, or --catalogue")
+    if args.fps is not None and not (args.fps > 0 and np.isfinite(args.fps)):
+        raise UsageError(f"--fps {args.fps}: allowed a positive number")
     if args.frames is not None and args.frames <= 0:
         raise UsageError(f"--frames {args.frames}: allowed a positive number")
     for flag, value in (("--csv", args.csv), ("--plot", args.plot)):
@@ -368,10 +379,10 @@ def _evaluate(args: argparse.Namespace) -> int:
         print(f"wrote {report}", file=sys.stderr)
         return 0
     extra: dict = {}
-    if args.track and not args.scenario:
-        raise UsageError("--track goes with --scenario (a detections CSV with track_id is scored for tracking "
-                         "by itself)")
-    if args.truth or args.detections:
+    if args.track and not (args.scenario or args.folder):
+        raise UsageError("--track goes with --scenario or a SOURCE (a detections CSV with track_id is scored for "
+                         "tracking by itself)")
+    if args.detections or (args.truth and not args.folder):
         if not (args.truth and args.detections):
             raise UsageError("--truth and --detections go together")
         from .evaluate.runs import read_csv_pair, score_csv_pair
@@ -392,11 +403,16 @@ def _evaluate(args: argparse.Namespace) -> int:
     else:
         name, params, detector = _detector_from(args)
         if args.folder:
-            folder = Path(args.folder)
-            if not folder.is_dir():
-                raise UsageError(f"{folder}: no such folder")
-            run = lambda d: evaluate_folder(folder, d, m)  # noqa: E731
-            title = f"detector {name} on {folder}"
+            from .evaluate.runs import evaluate_source
+
+            source = Path(args.folder)
+            if not source.exists():
+                raise UsageError(f"{source}: no such folder or video file")
+            truth_path = Path(args.truth) if args.truth else None
+            run = lambda d: evaluate_source(source, d, m, truth_path, args.frames)  # noqa: E731
+            title = f"detector {name} on {source}" + (f" against {truth_path}" if truth_path else "")
+            if args.track:
+                extra.update(_track_source(source, truth_path, detector, m, args.fps, args.frames))
         elif args.scenario:
             from .evaluate.runs import evaluate_scenario
 
@@ -444,6 +460,31 @@ def _evaluate(args: argparse.Namespace) -> int:
             print("  prediction error: " + ", ".join(
                 f"{k} frames {v['mean_px']:.2f} px (p95 {v['p95_px']:.2f})" for k, v in extra["prediction"].items()))
     return 0
+
+
+def _track_source(source, truth_path, detector, m, fps: float | None, limit: int | None) -> dict:
+    """Tracking figures of the default tracker on a folder of frames or a video with truth ids."""
+    from .evaluate.runs import evaluate_tracking, source_truth_frames
+    from .evaluate.tables import FrameTruth
+
+    if fps is None:
+        fps = 60.0
+        if source.is_file():
+            from .sources.video import VideoSource
+
+            with VideoSource(source) as video:
+                fps = video.fps or fps
+    empty = FrameTruth(np.empty((0, 2)), np.empty(0), np.empty(0, bool), np.empty(0, np.int64),
+                       np.empty(0, np.int64))
+
+    def frames():
+        for number, image, truth, _ in source_truth_frames(source, m, truth_path, limit):
+            truth = truth if truth is not None else empty
+            if (truth.ids < 0).any():
+                raise UsageError(f"{truth_path or source / 'truth.csv'}: tracking figures need particle ids "
+                                 "(an 'id' column, or the simulator's 'Bubble ID')")
+            yield number, image, truth
+    return evaluate_tracking(frames(), detector, m, fps=fps)
 
 
 def _bench(args: argparse.Namespace) -> int:

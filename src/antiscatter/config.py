@@ -41,7 +41,8 @@ def parse_size(text: str, *, key: str = "size") -> tuple[int, int]:
 class SourceConfig:
     """Where frames come from.
 
-    spec: ``sim``, ``camera``, ``webcam:N``, a folder of ``<int>.png`` or a video file.
+    spec: ``sim``, ``camera``, ``webcam:N``, a folder of frames (``<int>.png``, or images named in
+        order) or a video file.
     crop: ``"X0:X1,Y0:Y1"`` region of a video file, empty for the whole frame.
     loop: play a folder or video again from the start when it ends.
     preset: simulator preset for ``sim``.

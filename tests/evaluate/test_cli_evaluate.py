@@ -65,6 +65,88 @@ def test_bad_detection_files(sim, tmp_path, cli, content, message):
     assert message in result.err and "d.csv" in result.err
 
 
+def _annotations(sim, tmp_path, *, radius=True, ids=True):
+    """The simulator's counted truth rewritten as hand annotations: frame,x,y[,radius][,id]."""
+    rows = [r.split(",") for r in _truth_rows(sim)[1:]]
+    header = ["frame", "x", "y"] + (["radius"] if radius else []) + (["id"] if ids else [])
+    lines = [",".join(header)]
+    for r in rows:
+        if float(r[8]) >= 0.5 and int(r[9]) > 0 and float(r[10]) >= 5:
+            lines.append(",".join([r[1], r[2], r[3]] + ([r[4]] if radius else []) + ([r[0]] if ids else [])))
+    path = tmp_path / "annotations.csv"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_own_annotated_frames_image_folder_and_video(sim, tmp_path, cli):
+    # real footage as users bring it: frames named by a camera, or a video, with hand annotations
+    import av
+
+    frames = [cv2.imread(str(sim / f"{i}.png")) for i in range(6)]
+    folder = tmp_path / "dive"
+    folder.mkdir()
+    for i, image in enumerate(frames):
+        cv2.imwrite(str(folder / f"GX01_frame{i + 1}.tif"), image)  # lossless, natural order 1..6 -> 0..5
+    video = tmp_path / "dive.mkv"
+    with av.open(str(video), "w") as container:
+        stream = container.add_stream("ffv1", rate=30)
+        stream.width, stream.height, stream.pix_fmt = 800, 600, "bgr0"
+        for image in frames:
+            container.mux(stream.encode(av.VideoFrame.from_ndarray(image, format="bgr24")))
+        container.mux(stream.encode())
+    annotations = _annotations(sim, tmp_path)
+    reference = json.loads(cli("evaluate", str(sim), "--json").out)["overall"]
+    for source in (folder, video):
+        result = cli("evaluate", str(source), "--truth", str(annotations), "--json")
+        assert result.code == 0, result.err
+        overall = json.loads(result.out)["overall"]
+        # the same frames and the same counted particles: the same matches; detections of the
+        # particles the simulator does not count are false alarms against annotations of the rest
+        assert overall["tp"] == reference["tp"] and overall["fn"] == reference["fn"]
+        assert overall["fp"] >= reference["fp"]
+        assert overall["frames"] == 6
+    tracked = cli("evaluate", str(video), "--truth", str(annotations), "--track", "--json")
+    assert tracked.code == 0, tracked.err
+    assert 0 < json.loads(tracked.out)["tracking"]["idf1"] <= 1
+    limited = json.loads(cli("evaluate", str(folder), "--truth", str(annotations), "--frames", "2", "--json").out)
+    assert limited["overall"]["frames"] == 2
+
+
+def test_point_annotations_match_within_min_gate(sim, tmp_path, cli):
+    points = _annotations(sim, tmp_path, radius=False, ids=False)
+    wide = json.loads(cli("evaluate", str(sim), "--truth", str(points), "--min-gate", "4", "--json").out)
+    tight = json.loads(cli("evaluate", str(sim), "--truth", str(points), "--min-gate", "0.5", "--json").out)
+    reference = json.loads(cli("evaluate", str(sim), "--json").out)["overall"]  # radii known
+    assert wide["overall"]["tp"] >= 0.9 * reference["tp"] > 0
+    assert tight["overall"]["tp"] < 0.5 * wide["overall"]["tp"]
+    result = cli("evaluate", str(sim), "--truth", str(points), "--track")
+    assert result.code == 2 and "tracking figures need particle ids" in result.err
+
+
+@pytest.mark.parametrize("content, message", [
+    ("frame,x\n0,1\n", "missing column 'Frame #'"),
+    ("frame,x,y\n0,1,oops\n", "row 2: y 'oops' is not a number"),
+    ("frame,x,y\n-1,1,2\n", "row 2: frame -1 is negative"),
+    ("frame,x,y,radius\n0,1,2,-3\n", "row 2: radius '-3' is negative"),
+    ("frame,x,y\n6,1,2\n", "frame 6 is beyond the last frame of"),
+    ("", "empty; expected the header frame,x,y"),
+])
+def test_bad_annotation_files(sim, tmp_path, cli, content, message):
+    (tmp_path / "a.csv").write_text(content)
+    result = cli("evaluate", str(sim), "--truth", str(tmp_path / "a.csv"))
+    assert result.code == 2, result.err
+    assert len(result.err.strip().splitlines()) == 1
+    assert message in result.err and "a.csv" in result.err
+
+
+def test_a_source_without_truth(tmp_path, cli):
+    (tmp_path / "0.png").write_bytes(b"")
+    result = cli("evaluate", str(tmp_path))
+    assert result.code == 2 and "no truth.csv" in result.err and "--truth" in result.err
+    result = cli("evaluate", str(tmp_path / "nothing.mkv"), "--truth", str(tmp_path / "a.csv"))
+    assert result.code == 2 and "no such folder or video file" in result.err
+
+
 def test_masks_of_the_wrong_size(sim, tmp_path, cli):
     import shutil
     copy = tmp_path / "copy"

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from antiscatter.errors import UsageError
-from antiscatter.sources import FolderSource, list_frames, open_source
+from antiscatter.sources import FolderSource, frame_files, list_frames, open_source
 from conftest import numbered_frames
 
 
@@ -42,13 +42,41 @@ def test_loop_restarts(tmp_path):
 
 def test_empty_folder(tmp_path):
     (tmp_path / "readme.txt").write_text("x")
-    with pytest.raises(UsageError, match=r"no frames named <int>\.png in this folder"):
+    with pytest.raises(UsageError, match=r"no frames in this folder; allowed: <int>\.png files, or images "
+                                         r"named in order \(png, jpg, jpeg, tif, tiff, bmp\)"):
         open_source(str(tmp_path))
+
+
+def test_images_named_in_order_are_frames_in_natural_order(tmp_path):
+    # a camera's or an annotation tool's names: numbers inside names compare as numbers, any case
+    frames = numbered_frames(5)
+    names = ["IMG_2.JPG", "IMG_10.png", "IMG_1.tif", "img_3.bmp", "IMG_9.jpeg"]
+    order = ["IMG_1.tif", "IMG_2.JPG", "img_3.bmp", "IMG_9.jpeg", "IMG_10.png"]
+    for name in names:
+        cv2.imwrite(str(tmp_path / name), frames[order.index(name)])
+    (tmp_path / "notes.txt").write_text("x")
+    (tmp_path / "sub.png").mkdir()  # a folder is not a frame
+    assert [p.name for _, p in frame_files(tmp_path)] == order
+    assert [n for n, _ in frame_files(tmp_path)] == [0, 1, 2, 3, 4]
+    source = open_source(str(tmp_path))
+    read = []
+    while (frame := source.read()) is not None:
+        read.append(frame)
+    assert [f.index for f in read] == [0, 1, 2, 3, 4]
+    np.testing.assert_array_equal(read[0].image, frames[0])  # lossless formats read back exactly
+    np.testing.assert_array_equal(read[4].image, frames[4])
+    assert np.abs(read[1].image.astype(int) - frames[1]).mean() < 8  # JPEG: close
+
+
+def test_numbered_pngs_take_precedence_and_keep_their_numbers(tmp_path):
+    frames = numbered_frames(3)
+    _write(tmp_path, [("0.png", frames[0]), ("1.png", frames[1]), ("5.png", frames[2]), ("IMG_1.jpg", frames[0])])
+    assert [(n, p.name) for n, p in frame_files(tmp_path)] == [(0, "0.png"), (1, "1.png"), (5, "5.png")]
 
 
 def test_png_that_is_not_an_image(tmp_path):
     (tmp_path / "0.png").write_bytes(b"this is text")
-    with pytest.raises(UsageError, match=r"0\.png: not a readable PNG image"):
+    with pytest.raises(UsageError, match=r"0\.png: not a readable image"):
         open_source(str(tmp_path))
 
 
@@ -58,7 +86,7 @@ def test_bad_frame_in_the_middle_names_the_file(tmp_path):
     (tmp_path / "1.png").write_bytes(b"broken")
     source = FolderSource(tmp_path)
     assert source.read() is not None
-    with pytest.raises(UsageError, match=r"1\.png: not a readable PNG image"):
+    with pytest.raises(UsageError, match=r"1\.png: not a readable image"):
         source.read()
 
 

@@ -12,13 +12,12 @@ import numpy as np
 from ..detection import Detector
 from ..errors import UsageError
 from ..simulate import make_scene
-from ..sources.folder import list_frames
 from .metrics import FrameScore, score_frame
 from .reference import read_image, reference_truth
 from .tables import FrameTruth, read_detections, read_truth
 
-__all__ = ["Matching", "evaluate_csv", "evaluate_folder", "evaluate_scenario", "evaluate_pairs",
-           "scenario_frames"]
+__all__ = ["Matching", "evaluate_csv", "evaluate_folder", "evaluate_source", "evaluate_scenario",
+           "evaluate_pairs", "scenario_frames", "source_truth_frames"]
 
 
 @dataclass(frozen=True)
@@ -82,33 +81,72 @@ def evaluate_csv(truth_path: Path, detections_path: Path, m: Matching) -> list[F
     return score_csv_pair(*read_csv_pair(truth_path, detections_path, m), m)
 
 
-def evaluate_folder(folder: Path, detector: Detector, m: Matching) -> list[FrameScore]:
-    """Run ``detector`` on a simulator output folder; pixel metrics where masks/ exist."""
-    truth_path = folder / "truth.csv"
-    if not truth_path.is_file():
-        raise UsageError(f"{folder}: no truth.csv (expected an 'antiscatter simulate' output folder)")
+def source_truth_frames(source: Path, m: Matching, truth_path: Path | None = None, limit: int | None = None):
+    """(frame number, image, FrameTruth or None, label image path or None) of a folder of frames
+    or a video file, with its truth: ``truth_path``, else the folder's ``truth.csv`` (a
+    simulator output folder).  Frames are numbered as :func:`~antiscatter.sources.folder.frame_files`
+    does for a folder (``<int>.png`` by name, other images 0, 1, ... in order) and from 0 in
+    decoding order for a video; ``limit``: the first so many frames only.  Label images
+    (``masks/<frame file>``) only with the simulator's truth."""
+    from ..sources.folder import frame_files, no_frames
+    from ..sources.video import VideoSource
+
+    if truth_path is None:
+        truth_path = source / "truth.csv"
+        if not source.is_dir() or not truth_path.is_file():
+            raise UsageError(f"{source}: no truth.csv (expected an 'antiscatter simulate' output folder, "
+                             "or give --truth CSV)")
     truth = read_truth(truth_path, min_visibility=m.min_visibility, min_snr=m.min_snr)
-    paths = list_frames(folder)
-    if not paths:
-        raise UsageError(f"{folder}: no frames named <int>.png in this folder")
+    labelled = not any((t.labels < 0).any() for t in truth.values())
+    last = max(truth) if truth else -1
+    if source.is_dir():
+        files = frame_files(source)
+        if not files:
+            raise no_frames(source)
+        files = files[:limit] if limit else files
+        if last > files[-1][0] and not limit:
+            raise UsageError(f"{truth_path}: frame {last} is beyond the last frame of {source} "
+                             f"({files[-1][0]})")
+        for number, path in files:
+            mask = source / "masks" / path.name if labelled else None
+            yield number, read_image(path), truth.get(number), mask if mask is not None and mask.is_file() else None
+        return
+    video = VideoSource(source)
+    try:
+        number = 0
+        while (not limit or number < limit) and (frame := video.read()) is not None:
+            yield number, frame.image, truth.get(number), None
+            number += 1
+    finally:
+        video.close()
+    if last >= number and not limit:
+        raise UsageError(f"{truth_path}: frame {last} is beyond the last frame of {source} ({number - 1})")
+
+
+def evaluate_source(source: Path, detector: Detector, m: Matching, truth_path: Path | None = None,
+                    limit: int | None = None) -> list[FrameScore]:
+    """Run ``detector`` on a folder of frames or a video file and score it against its truth
+    (:func:`source_truth_frames`); pixel metrics where a simulator folder has masks/."""
     scores = []
     detector.reset()
-    for path in paths:
-        frame = int(path.stem)
-        image = read_image(path)
+    for frame, image, truth, mask_path in source_truth_frames(source, m, truth_path, limit):
         masks = None
-        mask_path = folder / "masks" / path.name
-        if mask_path.is_file():
+        if mask_path is not None:
             labels = cv2.imread(str(mask_path), cv2.IMREAD_UNCHANGED)
             if labels is None:
                 raise UsageError(f"{mask_path}: not a readable mask image")
             if labels.shape[:2] != image.shape[:2]:
                 raise UsageError(f"{mask_path}: mask is {labels.shape[1]}x{labels.shape[0]}, "
                                  f"frame is {image.shape[1]}x{image.shape[0]}")
-            masks = _label_masks(labels, truth.get(frame))
+            masks = _label_masks(labels, truth)
         found = detector.detect(image)
-        scores.append(_score(frame, truth.get(frame), found.centres, found.radii, m, masks))
+        scores.append(_score(frame, truth, found.centres, found.radii, m, masks))
     return scores
+
+
+def evaluate_folder(folder: Path, detector: Detector, m: Matching) -> list[FrameScore]:
+    """Run ``detector`` on a simulator output folder; pixel metrics where masks/ exist."""
+    return evaluate_source(folder, detector, m)
 
 
 def scenario_frames(preset: str, size: tuple[int, int], frames: int,

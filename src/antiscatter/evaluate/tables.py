@@ -16,7 +16,8 @@ __all__ = ["FrameTruth", "read_truth", "read_detections"]
 
 @dataclass(frozen=True)
 class FrameTruth:
-    """Truth of one frame: centres (N, 2), radii (N,), counted (N,) bool, labels (N,) int, ids (N,) int."""
+    """Truth of one frame: centres (N, 2), radii (N,), counted (N,) bool, labels (N,) int (the
+    simulator's label image values; -1 for truth without one), ids (N,) int (-1: none)."""
 
     centres: np.ndarray
     radii: np.ndarray
@@ -60,35 +61,62 @@ def _number(path: Path, line: int, name: str, text: str, *, integer: bool = Fals
     return value
 
 
-def read_truth(path: str | Path, *, min_visibility: float = 0.5, min_snr: float = 5.0) -> dict[int, FrameTruth]:
-    """truth.csv (the simulator's) -> {frame: FrameTruth}.
+#: the columns of a truth CSV: the simulator's (the report's names), or the plain ones of a
+#: detections CSV, which hand annotations can use (radius and id optional)
+SIMULATOR_COLUMNS = ("Frame #", "X Position", "Y Position", "Radius")
+PLAIN_COLUMNS = ("frame", "x", "y")
 
-    A particle is counted when its Visibility >= ``min_visibility``, its Label > 0
-    and its SNR >= ``min_snr`` (columns that are absent count as satisfied).
+
+def read_truth(path: str | Path, *, min_visibility: float = 0.5, min_snr: float = 5.0) -> dict[int, FrameTruth]:
+    """A truth CSV -> {frame: FrameTruth}.
+
+    Two headers are read: the simulator's ``truth.csv`` (Bubble ID, Frame #, X Position,
+    Y Position, Radius, and optionally Visibility, Label, SNR), where a particle is counted
+    when its Visibility >= ``min_visibility``, its Label > 0 and its SNR >= ``min_snr``
+    (columns that are absent count as satisfied); or the plain ``frame,x,y`` of a detections
+    CSV, with optional ``radius`` and ``id`` -- hand annotations, every row counted.  Without
+    a radius (points clicked on particle centres) a detection matches within the matching's
+    smallest distance (``--min-gate``).  Other columns are allowed and ignored.
     """
     path = Path(path)
-    index, rows = _rows(path, ("Frame #", "X Position", "Y Position", "Radius"))
+    index, rows = _rows(path, ())
     if index is None:
-        raise UsageError(f"{path}: empty; expected the header Bubble ID,Frame #,X Position,Y Position,Radius")
+        raise UsageError(f"{path}: empty; expected the header frame,x,y[,radius][,id] or the simulator's "
+                         "Bubble ID,Frame #,X Position,Y Position,Radius")
+    plain = all(c in index for c in PLAIN_COLUMNS)
+    if not plain:
+        missing = [c for c in SIMULATOR_COLUMNS if c not in index]
+        if missing:
+            raise UsageError(f"{path}: missing column {missing[0]!r} (header has: {', '.join(index)}); "
+                             "allowed headers: frame,x,y[,radius][,id] or the simulator's "
+                             "Frame #,X Position,Y Position,Radius")
+    names = (("frame", "x", "y", "radius", "id") if plain else
+             ("Frame #", "X Position", "Y Position", "Radius", "Bubble ID"))
+    c_frame, c_x, c_y, c_r, c_id = names
     frames: dict[int, list] = {}
     for line, row in rows:
         if not row:
             continue
         try:
-            frame = int(_number(path, line, "Frame #", row[index["Frame #"]], integer=True))
-            x = _number(path, line, "X Position", row[index["X Position"]])
-            y = _number(path, line, "Y Position", row[index["Y Position"]])
-            r = _number(path, line, "Radius", row[index["Radius"]], non_negative=True)
-            vis = float(row[index["Visibility"]]) if "Visibility" in index else 1.0
-            label = int(row[index["Label"]]) if "Label" in index else 1
-            snr = float(row[index["SNR"]]) if "SNR" in index else math.inf
-            ident = int(row[index["Bubble ID"]]) if "Bubble ID" in index else -1
+            frame = int(_number(path, line, c_frame, row[index[c_frame]], integer=True))
+            if frame < 0:
+                raise UsageError(f"{path} row {line}: {c_frame} {frame} is negative; allowed >= 0")
+            x = _number(path, line, c_x, row[index[c_x]])
+            y = _number(path, line, c_y, row[index[c_y]])
+            r = _number(path, line, c_r, row[index[c_r]], non_negative=True) if c_r in index else 0.0
+            ident = int(_number(path, line, c_id, row[index[c_id]], integer=True)) if c_id in index else -1
+            if plain:  # counted; no label image goes with it (label -1)
+                vis, label, snr = 1.0, -1, math.inf
+            else:
+                vis = float(row[index["Visibility"]]) if "Visibility" in index else 1.0
+                label = int(row[index["Label"]]) if "Label" in index else 1
+                snr = float(row[index["SNR"]]) if "SNR" in index else math.inf
         except IndexError:
             raise UsageError(f"{path} row {line}: has {len(row)} fields, the header has {len(index)}") from None
         except ValueError:
             raise UsageError(f"{path} row {line}: Visibility, Label or SNR is not a number") from None
-        frames.setdefault(frame, []).append((x, y, r, vis >= min_visibility and label > 0 and snr >= min_snr,
-                                             label, ident))
+        counted = plain or (vis >= min_visibility and label > 0 and snr >= min_snr)
+        frames.setdefault(frame, []).append((x, y, r, counted, label, ident))
     out = {}
     for frame, items in frames.items():
         arr = np.array([item[:3] for item in items], dtype=np.float64).reshape(-1, 3)

@@ -1,8 +1,8 @@
 """Frame sources, picked by the ``run`` argument.
 
 ``sim`` (or nothing) the built-in simulator; ``camera`` the Pi camera;
-``webcam:N`` an OpenCV capture device; a folder of ``<int>.png`` frames;
-a video file.
+``webcam:N`` an OpenCV capture device; a folder of frames (``<int>.png``, or
+images named in order: see :func:`~.folder.frame_files`); a video file.
 """
 
 from __future__ import annotations
@@ -12,13 +12,13 @@ from pathlib import Path
 
 from ..errors import UsageError
 from .base import Frame, FrameSource
-from .folder import FolderSource, list_frames
+from .folder import FolderSource, frame_files, list_frames
 from .video import VideoSource, parse_crop
 
 __all__ = ["Frame", "FrameSource", "FolderSource", "VideoSource", "open_source",
-           "list_frames", "parse_crop", "SOURCE_KINDS"]
+           "list_frames", "frame_files", "parse_crop", "SOURCE_KINDS"]
 
-SOURCE_KINDS = ("sim", "camera", "webcam:N", "<folder of <int>.png>", "<video file>")
+SOURCE_KINDS = ("sim", "camera", "webcam:N", "<folder of frames>", "<video file>")
 
 _WEBCAM = re.compile(r"^webcam:(\d+)$")
 

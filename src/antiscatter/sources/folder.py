@@ -1,4 +1,5 @@
-"""A folder of ``<int>.png`` frames, in natural numeric order."""
+"""A folder of frames: ``<int>.png`` files in numeric order (the simulator's and the report's
+frames), else every image file in natural order of name."""
 
 from __future__ import annotations
 
@@ -10,9 +11,11 @@ import cv2
 from ..errors import UsageError
 from .base import Frame, FrameSource
 
-__all__ = ["FolderSource", "list_frames"]
+__all__ = ["FolderSource", "list_frames", "frame_files", "IMAGE_SUFFIXES"]
 
 _FRAME_NAME = re.compile(r"^(\d+)\.png$", re.IGNORECASE)
+#: image files a frame folder may hold (any case)
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 
 
 def list_frames(folder: Path) -> list[Path]:
@@ -26,8 +29,34 @@ def list_frames(folder: Path) -> list[Path]:
     return [path for _, path in numbered]
 
 
+def _natural(name: str) -> list:
+    """Sort key: runs of digits compare as numbers (frame_2.jpg before frame_10.jpg)."""
+    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", name.lower())]
+
+
+def frame_files(folder: Path) -> list[tuple[int, Path]]:
+    """The frames of ``folder`` as (frame number, path), in order.
+
+    ``<int>.png`` files when there are any, numbered by their names (the simulator's output,
+    the report's recordings; other files beside them are ignored); otherwise every image file
+    (``IMAGE_SUFFIXES``) in natural order of name -- a camera's ``IMG_0001.JPG``..., an
+    annotation tool's ``frame_000010.tif``... -- numbered 0, 1, 2, ... in that order."""
+    numbered = list_frames(folder)
+    if numbered:
+        return [(int(path.stem), path) for path in numbered]
+    images = sorted((p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()),
+                    key=lambda p: _natural(p.name))
+    return list(enumerate(images))
+
+
+def no_frames(folder: Path) -> UsageError:
+    """The error for a folder without frames."""
+    return UsageError(f"{folder}: no frames in this folder; allowed: <int>.png files, or images named in "
+                      f"order ({', '.join(s[1:] for s in IMAGE_SUFFIXES)})")
+
+
 class FolderSource(FrameSource):
-    """Frames read from ``<int>.png`` files; other files are ignored.
+    """Frames read from the images of a folder (:func:`frame_files`), each numbered from 0 in order.
 
     loop: start again from the first frame after the last.
     """
@@ -36,9 +65,9 @@ class FolderSource(FrameSource):
 
     def __init__(self, folder: str | Path, *, loop: bool = False) -> None:
         self.folder = Path(folder)
-        self.paths = list_frames(self.folder)
+        self.paths = [path for _, path in frame_files(self.folder)]
         if not self.paths:
-            raise UsageError(f"{self.folder}: no frames named <int>.png in this folder")
+            raise no_frames(self.folder)
         self.loop = loop
         self._next = 0
         self._count = 0
@@ -49,7 +78,7 @@ class FolderSource(FrameSource):
     def _load(self, path: Path):
         image = cv2.imread(str(path), cv2.IMREAD_COLOR)
         if image is None:
-            raise UsageError(f"{path}: not a readable PNG image")
+            raise UsageError(f"{path}: not a readable image")
         return image
 
     def read(self) -> Frame | None:
