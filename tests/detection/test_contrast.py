@@ -233,6 +233,31 @@ def test_plain_noise_at_a_whole_grey_level_gives_almost_no_detections():
     assert counts[0] <= 2 and np.mean(counts[1:]) < 1.0
 
 
+@pytest.mark.parametrize("follow_gain", [True, False])
+def test_the_background_follows_the_cameras_exposure(follow_gain, monkeypatch):
+    # auto-exposure: the whole scene brightens 1 % a frame for 15 frames, then steps down 30 %;
+    # learning alone lags, and every pixel of textured ground shows as a particle
+    from antiscatter.detection.contrast import BackgroundModel
+
+    if not follow_gain:
+        monkeypatch.setattr(BackgroundModel, "match_gain", lambda self, half: 1.0)
+    rng = np.random.default_rng(5)
+    ground = 40 + 60 * fractal_noise((640, 480), rng, octaves=5, base=4)
+    spots = rng.uniform([20, 20], [620, 460], (20, 2))
+    detector = make_detector("contrast")
+    counts = []
+    for i in range(45):
+        gain = 1.0 if i < 20 else 1.01 ** (i - 20) if i < 35 else 0.7 * 1.01 ** 15
+        frame = np.clip(ground * gain + rng.normal(0, 2.0, ground.shape), 0, 255).astype(np.float32)
+        for x, y in spots:
+            cv2.circle(frame, (int(x + 2 * i) % 640, int(y)), 3, 255, -1)
+        counts.append(len(detector.detect(np.rint(frame).astype(np.uint8))))
+    if follow_gain:
+        assert max(counts[18:]) <= 24 and min(counts[18:]) >= 18  # the 20 particles, a few more at most
+    else:
+        assert max(counts[20:]) > 200
+
+
 def test_a_lone_pixel_needs_lone_k_noise_units():
     from antiscatter.detection.contrast import measure
 
