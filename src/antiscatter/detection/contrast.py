@@ -456,28 +456,33 @@ class BackgroundModel:
         """Follow a change of the whole scene's brightness at once: the camera's exposure or gain
         stepping or drifting (auto-exposure), the lamp dimmed, the vehicle closing on the ground.
         Learning alone lags such a change by many frames, and every pixel of textured ground
-        then shows as a particle (a 0.5 % a frame exposure ramp: thousands of false detections a
-        frame, 30 particles, none now).
+        then shows as a particle: an exposure ramp of 0.5 % a frame gave thousands of false
+        detections a frame (30 particles); ramps of 0.1-5 % a frame and steps of -30 % to +50 %
+        now give 30-35.
 
-        The change from the last frame is the ratio of this frame's sum to the last one's over a
-        grid of about ``GAIN_SAMPLES`` pixels whose background is at least ``GAIN_MIN_LEVEL``,
-        leaving out those whose difference is far from the typical one (particles, moving, are a
-        few per cent of them): unbiased whatever the noise's shape, the two frames being alike.
-        (A median of ratios sticks at exactly 1 on whole grey levels; pixels chosen by either
-        frame's brightness bias the ratio by their noise.)  The changes are multiplied up, with their variances
-        (the median's standard error: 1.25 x spread / sqrt(n), the spread from the median
-        absolute deviation), until their product differs from 1 by more than ``GAIN_STEP`` and
-        ``GAIN_SIGMAS`` standard errors: the learnt background is then scaled by it.  A steady
-        scene's noise never gets there; a drift of 0.3 % a frame does within two frames.  Not
-        across a pan (:meth:`follow` moved the background): the grid's pixels saw other ground
-        in the last frame (a vertical pan over the seabed: 200 false detections a frame).
-        Returns the factor applied (1.0: none)."""
+        The change from the last frame is the ratio of the two frames' sums over a grid of
+        about ``GAIN_SAMPLES`` pixels whose learnt background is at least ``GAIN_MIN_LEVEL``,
+        leaving out those whose difference is far from the typical one (particles, moving, are
+        a few per cent of them).  The two frames being alike, it is unbiased whatever the
+        noise's shape; a median of ratios stuck at exactly 1 on whole grey levels, and pixels
+        chosen by either frame's brightness biased it by their noise.  Its standard error
+        comes from what the ratio leaves unexplained.  The changes are multiplied up, with
+        their variances, until their product differs from 1 by more than ``GAIN_STEP`` and
+        ``GAIN_SIGMAS`` standard errors; the learnt background is then scaled by it.  A steady
+        scene's noise never gets there (no step in any catalogued scene or the twin); a drift
+        of 0.3 % a frame does within two frames.  Nothing is read across a pan (:meth:`follow`
+        moved the background: the grid's pixels saw other ground; a vertical pan over the
+        seabed gave 200 false detections a frame) or when the frames differ by more than a
+        brightness change and ``GAIN_SPREAD`` times the noise (the view moved by less than
+        ``follow`` takes up, or the scene changed).  During the warm-up the background learns
+        fast enough to follow by itself.  About 25 us a frame.  Returns the factor applied
+        (1.0: none)."""
         h, w = half.shape
         step = max(1, int(math.sqrt(h * w / self.GAIN_SAMPLES)))
         grid = half[step // 2::step, step // 2::step].astype(np.float32)
         previous, self._grid = self._grid, grid
         if previous is None or previous.shape != grid.shape or not self.learnt():
-            return 1.0  # the warm-up's fast learning follows by itself
+            return 1.0
         # chosen by the learnt background: chosen by either frame, their noise would bias the ratio
         usable = self.background[step // 2::step, step // 2::step] >= self.GAIN_MIN_LEVEL
         if np.count_nonzero(usable) < self.GAIN_SAMPLES // 10:
@@ -486,7 +491,10 @@ class BackgroundModel:
         diff = now - before
         middle = _middle(diff)
         deviation = np.abs(diff - middle)
-        # particles (and the odd noise spike) out: differences far from the typical one
+        # particles (and the odd noise spike) out: differences far from the typical one.  Centred
+        # on the median difference: a sum ratio over all pixels would be pulled by particles --
+        # in the dense cloud those pixels whose background is lit at all are mostly where
+        # particles were, and are leaving -- and 0.5 % a frame added up to false steps of 25 %
         keep = deviation <= 2.5 * 1.4826 * _middle(deviation) + 1.0
         if np.count_nonzero(keep) < self.GAIN_SAMPLES // 10:
             return 1.0
@@ -496,11 +504,10 @@ class BackgroundModel:
         left = now - np.float32(ratio) * before
         residual = math.sqrt(max(float(np.dot(left, left)) / len(left) - (float(left.sum()) / len(left)) ** 2, 0.0))
         if residual > self.GAIN_SPREAD * math.sqrt(2.0) * self._typical_noise:
-            # more between the two frames than a brightness change and the sensor's noise: the
-            # view moved by less than follow() takes up, or the scene changed -- nothing to read
-            self._gain, self._gain_var = 1.0, 0.0
+            self._gain, self._gain_var = 1.0, 0.0  # not the same view: nothing to read
             return 1.0
-        error = residual * math.sqrt(len(now)) / total
+        # (the kept pixels' spread is cut at the window: never below the two frames' noise)
+        error = max(residual, math.sqrt(2.0) * self._typical_noise) * math.sqrt(len(now)) / total
         self._gain *= ratio
         self._gain_var += error * error
         change = self._gain
@@ -517,12 +524,14 @@ class BackgroundModel:
     GAIN_SAMPLES = 2000
     #: backgrounds darker than this (grey levels) say little about a ratio: their noise is most of them
     GAIN_MIN_LEVEL = 8.0
-    #: smallest change of brightness followed at once (the median of 2000 ratios is good to 0.1 %)
+    #: smallest change of brightness followed at once (over textured ground at levels of 40-100
+    #: with a noise of 2, one frame's ratio is good to about 0.1 %)
     GAIN_STEP = 0.003
-    #: ... and it must exceed this many standard errors: over dark water the ratios spread by 20 %
-    #: (noise of 1.5 on levels of 10) and their median by 0.5 % from frame to frame
+    #: ... and it must exceed this many standard errors (over dark water, levels near 10 with a
+    #: noise of 1.5, one frame's ratio is good to about 0.5 % only)
     GAIN_SIGMAS = 4.0
-    #: frames whose differences spread more than this many times the noise's are not compared
+    #: frames whose difference, the brightness change taken out, spreads more than this many
+    #: times the two frames' noise are not the same view: not compared
     GAIN_SPREAD = 2.0
 
     def _fill_entering(self, half: np.ndarray, dx: int, dy: int) -> None:
