@@ -121,6 +121,10 @@ def test_point_annotations_match_within_min_gate(sim, tmp_path, cli):
     assert tight["overall"]["tp"] < 0.5 * wide["overall"]["tp"]
     result = cli("evaluate", str(sim), "--truth", str(points), "--track")
     assert result.code == 2 and "tracking figures need particle ids" in result.err
+    named = _annotations(sim, tmp_path)
+    named.write_text(named.read_text().replace(",id\n", ",track_id\n", 1))  # as run --detections names it
+    result = cli("evaluate", str(sim), "--truth", str(named), "--track", "--json")
+    assert result.code == 0 and json.loads(result.out)["tracking"]["idf1"] > 0
 
 
 @pytest.mark.parametrize("content, message", [

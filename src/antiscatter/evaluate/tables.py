@@ -74,7 +74,8 @@ def read_truth(path: str | Path, *, min_visibility: float = 0.5, min_snr: float 
     Y Position, Radius, and optionally Visibility, Label, SNR), where a particle is counted
     when its Visibility >= ``min_visibility``, its Label > 0 and its SNR >= ``min_snr``
     (columns that are absent count as satisfied); or the plain ``frame,x,y`` of a detections
-    CSV, with optional ``radius`` and ``id`` -- hand annotations, every row counted.  Without
+    CSV, with optional ``radius`` and ``id`` (or ``track_id``, as ``run --detections`` writes)
+    -- hand annotations, every row counted.  Without
     a radius (points clicked on particle centres) a detection matches within the matching's
     smallest distance (``--min-gate``).  Other columns are allowed and ignored.
     """
@@ -90,7 +91,7 @@ def read_truth(path: str | Path, *, min_visibility: float = 0.5, min_snr: float 
             raise UsageError(f"{path}: missing column {missing[0]!r} (header has: {', '.join(index)}); "
                              "allowed headers: frame,x,y[,radius][,id] or the simulator's "
                              "Frame #,X Position,Y Position,Radius")
-    names = (("frame", "x", "y", "radius", "id") if plain else
+    names = (("frame", "x", "y", "radius", "id" if "id" in index else "track_id") if plain else
              ("Frame #", "X Position", "Y Position", "Radius", "Bubble ID"))
     c_frame, c_x, c_y, c_r, c_id = names
     frames: dict[int, list] = {}
