@@ -101,3 +101,38 @@ def test_frame_of_other_size_rejected(tmp_path):
 def test_missing_path():
     with pytest.raises(UsageError, match=r"source 'no/such/dir': no such file or folder; allowed: sim, camera"):
         open_source("no/such/dir")
+
+
+def test_16_bit_frames_are_scaled_by_the_first_frames_depth(tmp_path):
+    # a scientific camera's 12-bit samples in 16-bit files: scaled to 8 bits by 12 bits, every
+    # frame alike (OpenCV's own conversion would drop the low byte: 0-15 left)
+    first = np.full((48, 64), 800, np.uint16)
+    first[10, 10] = 4095
+    second = np.full((48, 64), 400, np.uint16)
+    cv2.imwrite(str(tmp_path / "cam_1.tif"), first)
+    cv2.imwrite(str(tmp_path / "cam_2.tif"), second)
+    source = open_source(str(tmp_path))
+    a, b = source.read().image, source.read().image
+    assert a.dtype == np.uint8 and a.shape == (48, 64, 3)
+    assert a[10, 10, 0] == 255 and a[0, 0, 0] == round(800 * 255 / 4095)
+    assert b[0, 0, 0] == round(400 * 255 / 4095)  # the first frame's depth, not its own
+    full = np.full((48, 64), 60000, np.uint16)
+    cv2.imwrite(str(tmp_path / "cam_1.tif"), full)
+    assert open_source(str(tmp_path)).read().image[0, 0, 0] == round(60000 * 255 / 65535)
+
+
+def test_float_frames_are_refused(tmp_path):
+    cv2.imwrite(str(tmp_path / "a.tif"), np.zeros((8, 8, 3), np.float32))
+    with pytest.raises(UsageError, match=r"a\.tif: float32 samples; allowed 8- or 16-bit images"):
+        open_source(str(tmp_path))
+
+
+def test_an_image_opencv_cannot_decode_is_one_line(tmp_path, python):
+    import subprocess
+
+    cv2.imwrite(str(tmp_path / "a.tif"), np.zeros((8, 8), np.float32))  # one float channel: OpenCV fails
+    # in a process of its own: OpenCV's own messages go to the process's stderr, not Python's
+    result = subprocess.run([python, "-m", "antiscatter", "run", str(tmp_path), "--output", "none"],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and result.stderr.strip().splitlines() == [
+        f"antiscatter run: error: {tmp_path / 'a.tif'}: not a readable image"]

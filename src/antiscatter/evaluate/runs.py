@@ -88,7 +88,7 @@ def source_truth_frames(source: Path, m: Matching, truth_path: Path | None = Non
     does for a folder (``<int>.png`` by name, other images 0, 1, ... in order) and from 0 in
     decoding order for a video; ``limit``: the first so many frames only.  Label images
     (``masks/<frame file>``) only with the simulator's truth."""
-    from ..sources.folder import frame_files, no_frames
+    from ..sources.folder import frame_files, no_frames, read_frame
     from ..sources.video import VideoSource
 
     if truth_path is None:
@@ -107,9 +107,11 @@ def source_truth_frames(source: Path, m: Matching, truth_path: Path | None = Non
         if last > files[-1][0] and not limit:
             raise UsageError(f"{truth_path}: frame {last} is beyond the last frame of {source} "
                              f"({files[-1][0]})")
+        bits = None  # every frame scaled as the first (16-bit files)
         for number, path in files:
             mask = source / "masks" / path.name if labelled else None
-            yield number, read_image(path), truth.get(number), mask if mask is not None and mask.is_file() else None
+            image, bits = read_frame(path, bits)
+            yield number, image, truth.get(number), mask if mask is not None and mask.is_file() else None
         return
     video = VideoSource(source)
     try:

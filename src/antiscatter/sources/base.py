@@ -14,11 +14,12 @@ __all__ = ["Frame", "FrameSource", "quiet_opencv"]
 
 
 @contextmanager
-def quiet_opencv() -> Iterator[None]:
-    """Silence OpenCV's own warnings (device probing) so errors stay one line."""
+def quiet_opencv(*, errors: bool = False) -> Iterator[None]:
+    """Silence OpenCV's own warnings (device probing) so errors stay one line; ``errors``: its
+    error messages too (a file it cannot decode: ours names the file and says so)."""
     logging = cv2.utils.logging
     previous = logging.getLogLevel()
-    logging.setLogLevel(logging.LOG_LEVEL_ERROR)
+    logging.setLogLevel(logging.LOG_LEVEL_SILENT if errors else logging.LOG_LEVEL_ERROR)
     try:
         yield
     finally:

@@ -7,11 +7,12 @@ import re
 from pathlib import Path
 
 import cv2
+import numpy as np
 
 from ..errors import UsageError
-from .base import Frame, FrameSource
+from .base import Frame, FrameSource, quiet_opencv
 
-__all__ = ["FolderSource", "list_frames", "frame_files", "IMAGE_SUFFIXES"]
+__all__ = ["FolderSource", "list_frames", "frame_files", "read_frame", "IMAGE_SUFFIXES"]
 
 _FRAME_NAME = re.compile(r"^(\d+)\.png$", re.IGNORECASE)
 #: image files a frame folder may hold (any case)
@@ -55,6 +56,28 @@ def no_frames(folder: Path) -> UsageError:
                       f"order ({', '.join(s[1:] for s in IMAGE_SUFFIXES)})")
 
 
+def read_frame(path: Path, bits: int | None = None) -> tuple[np.ndarray, int]:
+    """(BGR uint8 image, bit depth) of an image file.
+
+    8-bit files are read as they are.  16-bit files (scientific cameras, raw converters) hold
+    10-, 12-, 14- or 16-bit samples: ``bits`` -- the depth, found from the first frame of a
+    sequence so every frame is scaled alike -- is the least of 10, 12, 14, 16 that holds the
+    brightest sample when not given, and the samples are scaled to 8 bits by it (OpenCV's own
+    conversion drops the low byte, leaving 12-bit data at 0-15).  Other sample types are refused."""
+    with quiet_opencv(errors=True):
+        image = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
+    if image is None:
+        raise UsageError(f"{path}: not a readable image")
+    if image.dtype == np.uint8:
+        return image, 8
+    if image.dtype != np.uint16:
+        raise UsageError(f"{path}: {image.dtype} samples; allowed 8- or 16-bit images")
+    if bits is None:
+        peak = int(image.max())
+        bits = next(b for b in (10, 12, 14, 16) if peak < 1 << b)
+    return cv2.convertScaleAbs(image, alpha=255.0 / ((1 << bits) - 1)), bits
+
+
 class FolderSource(FrameSource):
     """Frames read from the images of a folder (:func:`frame_files`), each numbered from 0 in order.
 
@@ -71,14 +94,14 @@ class FolderSource(FrameSource):
         self.loop = loop
         self._next = 0
         self._count = 0
+        self._bits: int | None = None  # the sample depth, from the first frame
         first = self._load(self.paths[0])
         self.size = (first.shape[1], first.shape[0])
         self._first = first
 
     def _load(self, path: Path):
-        image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-        if image is None:
-            raise UsageError(f"{path}: not a readable image")
+        image, bits = read_frame(path, self._bits)
+        self._bits = bits
         return image
 
     def read(self) -> Frame | None:
