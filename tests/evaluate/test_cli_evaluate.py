@@ -112,6 +112,25 @@ def test_own_annotated_frames_image_folder_and_video(sim, tmp_path, cli):
     assert limited["overall"]["frames"] == 2
 
 
+def test_annotations_may_name_the_image_files(sim, tmp_path, cli):
+    # annotation tools export per image: the frame column holds the file name
+    import shutil
+
+    folder = tmp_path / "dive"
+    folder.mkdir()
+    for i in range(6):
+        shutil.copy(sim / f"{i}.png", folder / f"shot_{i + 1:03d}.png")
+    lines = _annotations(sim, tmp_path).read_text().splitlines()
+    named = [lines[0]] + [f"shot_{int(r.split(',')[0]) + 1:03d}.png," + r.split(",", 1)[1] for r in lines[1:]]
+    (tmp_path / "named.csv").write_text("\n".join(named) + "\n")
+    by_name = json.loads(cli("evaluate", str(folder), "--truth", str(tmp_path / "named.csv"), "--json").out)
+    by_number = json.loads(cli("evaluate", str(folder), "--truth", str(_annotations(sim, tmp_path)), "--json").out)
+    assert by_name["overall"] == by_number["overall"] and by_name["overall"]["tp"] > 0
+    (tmp_path / "bad.csv").write_text("frame,x,y\nshot_999.png,1,2\n")
+    result = cli("evaluate", str(folder), "--truth", str(tmp_path / "bad.csv"))
+    assert result.code == 2 and "row 2: frame 'shot_999.png' is neither a frame number nor the name" in result.err
+
+
 def test_point_annotations_match_within_min_gate(sim, tmp_path, cli):
     points = _annotations(sim, tmp_path, radius=False, ids=False)
     wide = json.loads(cli("evaluate", str(sim), "--truth", str(points), "--min-gate", "4", "--json").out)

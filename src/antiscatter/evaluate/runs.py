@@ -86,7 +86,8 @@ def source_truth_frames(source: Path, m: Matching, truth_path: Path | None = Non
     or a video file, with its truth: ``truth_path``, else the folder's ``truth.csv`` (a
     simulator output folder).  Frames are numbered as :func:`~antiscatter.sources.folder.frame_files`
     does for a folder (``<int>.png`` by name, other images 0, 1, ... in order) and from 0 in
-    decoding order for a video; ``limit``: the first so many frames only.  Label images
+    decoding order for a video (a folder's truth may name its frames by file name instead);
+    ``limit``: the first so many frames only.  Label images
     (``masks/<frame file>``) only with the simulator's truth."""
     from ..sources.folder import frame_files, no_frames, read_frame
     from ..sources.video import VideoSource
@@ -96,13 +97,14 @@ def source_truth_frames(source: Path, m: Matching, truth_path: Path | None = Non
         if not source.is_dir() or not truth_path.is_file():
             raise UsageError(f"{source}: no truth.csv (expected an 'antiscatter simulate' output folder, "
                              "or give --truth CSV)")
-    truth = read_truth(truth_path, min_visibility=m.min_visibility, min_snr=m.min_snr)
+    files = frame_files(source) if source.is_dir() else None
+    if files is not None and not files:
+        raise no_frames(source)
+    names = {path.name: number for number, path in files} if files else None
+    truth = read_truth(truth_path, min_visibility=m.min_visibility, min_snr=m.min_snr, frame_names=names)
     labelled = not any((t.labels < 0).any() for t in truth.values())
     last = max(truth) if truth else -1
-    if source.is_dir():
-        files = frame_files(source)
-        if not files:
-            raise no_frames(source)
+    if files is not None:
         files = files[:limit] if limit else files
         if last > files[-1][0] and not limit:
             raise UsageError(f"{truth_path}: frame {last} is beyond the last frame of {source} "

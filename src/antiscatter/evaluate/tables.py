@@ -67,7 +67,8 @@ SIMULATOR_COLUMNS = ("Frame #", "X Position", "Y Position", "Radius")
 PLAIN_COLUMNS = ("frame", "x", "y")
 
 
-def read_truth(path: str | Path, *, min_visibility: float = 0.5, min_snr: float = 5.0) -> dict[int, FrameTruth]:
+def read_truth(path: str | Path, *, min_visibility: float = 0.5, min_snr: float = 5.0,
+               frame_names: dict[str, int] | None = None) -> dict[int, FrameTruth]:
     """A truth CSV -> {frame: FrameTruth}.
 
     Two headers are read: the simulator's ``truth.csv`` (Bubble ID, Frame #, X Position,
@@ -78,6 +79,9 @@ def read_truth(path: str | Path, *, min_visibility: float = 0.5, min_snr: float 
     -- hand annotations, every row counted.  Without
     a radius (points clicked on particle centres) a detection matches within the matching's
     smallest distance (``--min-gate``).  Other columns are allowed and ignored.
+    ``frame_names``: file name -> frame number of the frames' folder; the plain ``frame``
+    column may then name each row's image file (as annotation tools export) instead of its
+    number.
     """
     path = Path(path)
     index, rows = _rows(path, ())
@@ -99,7 +103,14 @@ def read_truth(path: str | Path, *, min_visibility: float = 0.5, min_snr: float 
         if not row:
             continue
         try:
-            frame = int(_number(path, line, c_frame, row[index[c_frame]], integer=True))
+            text = row[index[c_frame]].strip()
+            if plain and frame_names is not None and text in frame_names:
+                frame = frame_names[text]
+            elif plain and frame_names is not None and not text.lstrip("-").isdigit():
+                raise UsageError(f"{path} row {line}: frame {text!r} is neither a frame number nor the "
+                                 "name of an image among the frames")
+            else:
+                frame = int(_number(path, line, c_frame, text, integer=True))
             if frame < 0:
                 raise UsageError(f"{path} row {line}: {c_frame} {frame} is negative; allowed >= 0")
             x = _number(path, line, c_x, row[index[c_x]])
