@@ -258,6 +258,24 @@ def test_the_background_follows_the_cameras_exposure(follow_gain, monkeypatch):
         assert max(counts[20:]) > 200
 
 
+def test_exposure_following_on_black_frames_under_a_lit_background():
+    # the report's tank: a black scene whose learnt background still holds particles that have
+    # gone; the frames there are all zero -- no ratio to take, and no error
+    from antiscatter.detection.contrast import BackgroundModel
+
+    model = BackgroundModel(cell=8, memory=20)
+    learnt = np.zeros((120, 160), np.uint8)
+    learnt[:, :40] = 40  # a quarter of the view: not enough to count as a new scene when it goes
+    none = np.zeros((120, 160), np.uint8)
+    for _ in range(BackgroundModel.WARMUP + 2):
+        model.estimate(learnt)
+        model.learn(learnt, none)
+    black = np.zeros((120, 160), np.uint8)
+    for _ in range(3):
+        model.estimate(black)  # calls match_gain: the last frame's sum over the lit rows is 0
+    assert model.learnt() and model.match_gain(black) == 1.0
+
+
 def test_a_lone_pixel_needs_lone_k_noise_units():
     from antiscatter.detection.contrast import measure
 
