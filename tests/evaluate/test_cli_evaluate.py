@@ -212,8 +212,10 @@ def test_real_pair_cli(tmp_path, cli):
     assert overall["tp"] == 1 and overall["fp"] == 0 and overall["cancellation"] > 0.9
 
 
-def test_plot_written(sim, tmp_path, cli):
-    result = cli("evaluate", str(sim), "--detector", "seed", "--plot", str(tmp_path / "p.png"))
+@pytest.mark.parametrize("detector", ["seed", "contrast"])
+def test_plot_written(sim, tmp_path, cli, detector):
+    # the contrast sweep moves k_expected with k (it must stay at or below k)
+    result = cli("evaluate", str(sim), "--detector", detector, "--frames", "3", "--plot", str(tmp_path / "p.png"))
     assert result.code == 0, result.err
     image = cv2.imread(str(tmp_path / "p.png"))
     assert image is not None and image.shape[1] > 800

@@ -74,21 +74,24 @@ class _Entry:
     build: Callable[[Any], Detector]
     summary: str
     sweep: tuple[str, tuple] = ("", ())  # sensitivity parameter and values for PR curves
+    sweep_scaled: tuple[str, ...] = ()  # parameters that scale with it
 
 
 DETECTORS: dict[str, _Entry] = {}
 
 
 def register_detector(name: str, params: type, build: Callable[[Any], Detector],
-                      summary: str, *, sweep: tuple[str, tuple] = ("", ())) -> None:
+                      summary: str, *, sweep: tuple[str, tuple] = ("", ()),
+                      sweep_scaled: tuple[str, ...] = ()) -> None:
     """Add a detector under ``name``; ``params`` is its frozen config dataclass.
 
     sweep: (parameter name, values from most to least sensitive) used to draw
-    precision-recall curves.
+    precision-recall curves; sweep_scaled: parameters moved in proportion with it
+    (a second threshold bound to the first).
     """
     if not is_dataclass(params):
         raise TypeError("params must be a dataclass type")
-    DETECTORS[name] = _Entry(params, build, summary, sweep)
+    DETECTORS[name] = _Entry(params, build, summary, sweep, sweep_scaled)
 
 
 def detector_entry(name: str) -> _Entry:

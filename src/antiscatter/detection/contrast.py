@@ -1243,4 +1243,4 @@ def _working_light(light: np.ndarray | None, shape: tuple[int, int], factor: int
 register_detector("contrast", ContrastParams, build_contrast,
                   "local contrast over a learnt background, threshold in noise units, one labelling pass "
                   "(the default)",
-                  sweep=("k", (2.0, 2.5, 3.0, 3.5, 4.0, 5.0, 6.0, 8.0, 10.0, 14.0)))
+                  sweep=("k", (2.0, 2.5, 3.0, 3.5, 4.0, 5.0, 6.0, 8.0, 10.0, 14.0)), sweep_scaled=("k_expected",))

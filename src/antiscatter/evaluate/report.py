@@ -89,12 +89,15 @@ def plot_evaluation(path: str | Path, scores: list[FrameScore],
 
 def sweep_detector(name: str, params: Any, evaluate: Callable[[Any], list[FrameScore]]) -> list[tuple[float, dict]]:
     """Summaries of ``evaluate(detector)`` over the detector's sensitivity sweep."""
-    key, values = DETECTORS[name].sweep
+    entry = DETECTORS[name]
+    key, values = entry.sweep
     if not key:
         return []
     out = []
     for value in values:
-        detector = make_detector(name, replace(params, **{key: value}))
+        scale = value / getattr(params, key) if getattr(params, key) else 1.0
+        changes = {key: value, **{tied: getattr(params, tied) * scale for tied in entry.sweep_scaled}}
+        detector = make_detector(name, replace(params, **changes))
         out.append((value, summarise(evaluate(detector))))
     return out
 
