@@ -62,6 +62,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--seed", type=int, help="random seed of the simulator (default 0)")
     g.add_argument("--size", metavar="WxH", help="frame size for sim, camera and webcam")
     g.add_argument("--camera-fps", type=float, help="frame rate asked of the camera (default 60)")
+    g.add_argument("--camera-exposure-ms", type=float, help="fixed camera exposure, ms, automatic exposure and "
+                   "gain off (default: automatic); pulse and flash need it inside one projector refresh")
+    g.add_argument("--camera-gain", type=float, help="analogue gain with a fixed exposure, 1-64 (default 1)")
     g.add_argument("--camera-colour", action="store_true", default=None, help="BGR frames from the camera "
                    "instead of the Y plane of its YUV420 stream (the default: grey without conversion)")
     g = run.add_argument_group("detector")
@@ -793,7 +796,8 @@ def _run_config(args: argparse.Namespace):
     overrides: dict[str, dict[str, Any]] = {
         "source": {"spec": args.source, "crop": args.crop, "loop": args.loop, "preset": args.preset,
                    "seed": args.seed, "size": args.size, "camera_fps": args.camera_fps,
-                   "camera_colour": args.camera_colour},
+                   "camera_colour": args.camera_colour, "camera_exposure_ms": args.camera_exposure_ms,
+                   "camera_gain": args.camera_gain},
         "detector": {"name": args.detector},
         "pattern": {"margin": args.margin},
         "track": {"enabled": args.track, "predict": args.predict, "latency_ms": args.latency_ms},

@@ -50,6 +50,9 @@ class SourceConfig:
     size: ``"WxH"`` for sim, camera and webcam; empty for the source's own.
     camera_fps: frame rate asked of the camera, frames per second.
     camera_colour: BGR from the camera instead of the Y plane of YUV420 (the default, no conversion).
+    camera_exposure_ms: a fixed camera exposure, milliseconds, automatic exposure and gain off
+        (0, the default: automatic); ``pulse`` and ``flash`` need it inside one projector refresh.
+    camera_gain: the analogue gain with a fixed exposure (0, the default: 1.0).
     """
 
     spec: str = "sim"
@@ -60,12 +63,21 @@ class SourceConfig:
     size: str = ""
     camera_fps: float = 60.0
     camera_colour: bool = False
+    camera_exposure_ms: float = 0.0
+    camera_gain: float = 0.0
 
     def __post_init__(self) -> None:
         if self.size:
             parse_size(self.size)
         if not self.camera_fps > 0:
             raise ValueError(f"camera_fps: got {self.camera_fps}, allowed > 0")
+        if not (0 <= self.camera_exposure_ms <= 1e3 / self.camera_fps):
+            raise ValueError(f"camera_exposure_ms: got {self.camera_exposure_ms}, allowed 0 (automatic) to the "
+                             f"frame period ({1e3 / self.camera_fps:.2f} ms)")
+        if not (self.camera_gain == 0 or 1.0 <= self.camera_gain <= 64.0):
+            raise ValueError(f"camera_gain: got {self.camera_gain}, allowed 0 (1.0 with a fixed exposure) or 1 to 64")
+        if self.camera_gain and not self.camera_exposure_ms:
+            raise ValueError(f"camera_gain: got {self.camera_gain}, goes with a fixed camera_exposure_ms")
         if self.seed < 0:
             raise ValueError(f"seed: got {self.seed}, allowed >= 0")
 

@@ -250,7 +250,8 @@ def _open_source(config: Config) -> FrameSource:
     crop = parse_crop(sc.crop) if sc.crop else None
     size = parse_size(sc.size) if sc.size else None
     return open_source(sc.spec, crop=crop, loop=sc.loop, sim_preset=sc.preset, seed=sc.seed,
-                       size=size, fps=sc.camera_fps, colour=sc.camera_colour)
+                       size=size, fps=sc.camera_fps, colour=sc.camera_colour,
+                       exposure_ms=sc.camera_exposure_ms or None, gain=sc.camera_gain or None)
 
 
 @dataclass

@@ -116,3 +116,36 @@ def test_off_the_pi_the_camera_needs_picamera2():
             load_picamera2()
     else:  # on a Pi the classes load
         assert all(load_picamera2())
+
+
+def test_a_fixed_exposure_turns_automatic_exposure_and_gain_off():
+    # pulse and flash time the lamp to the exposure: it must be short and stay put
+    CameraSource(size=(64, 48), fps=60.0, exposure_ms=4.0, gain=2.5, picamera2=FakePicamera2)
+    controls = FakePicamera2.instances[-1].config["controls"]
+    assert controls == {"FrameDurationLimits": (16667, 16667), "AeEnable": False, "ExposureTime": 4000,
+                        "AnalogueGain": 2.5}
+    CameraSource(size=(64, 48), fps=60.0, exposure_ms=2.0, picamera2=FakePicamera2)
+    assert FakePicamera2.instances[-1].config["controls"]["AnalogueGain"] == 1.0
+    CameraSource(size=(64, 48), fps=60.0, picamera2=FakePicamera2)  # automatic by default
+    assert FakePicamera2.instances[-1].config["controls"] == {"FrameDurationLimits": (16667, 16667)}
+
+
+@pytest.mark.parametrize("kw, message", [
+    (dict(exposure_ms=20.0), r"camera exposure 20.0 ms: allowed 0 < exposure <= the frame period \(16.67 ms"),
+    (dict(exposure_ms=0.0), "camera exposure 0.0 ms"),
+    (dict(exposure_ms=4.0, gain=0.5), "camera gain 0.5: allowed 1.0 to 64"),
+    (dict(gain=2.0), "camera gain: goes with a fixed exposure"),
+])
+def test_bad_exposure_settings_are_refused_before_the_camera_opens(kw, message):
+    before = len(FakePicamera2.instances)
+    with pytest.raises(UsageError, match=message):
+        CameraSource(size=(64, 48), fps=60.0, picamera2=FakePicamera2, **kw)
+    assert len(FakePicamera2.instances) == before
+
+
+def test_run_refuses_a_bad_camera_exposure_in_one_line(cli):
+    result = cli("run", "camera", "--camera-exposure-ms", "20", "--frames", "1", "--output", "none")
+    assert result.code == 2 and len(result.err.strip().splitlines()) == 1
+    assert "camera_exposure_ms: got 20.0, allowed 0 (automatic) to the frame period (16.67 ms)" in result.err
+    result = cli("run", "camera", "--camera-gain", "2", "--frames", "1", "--output", "none")
+    assert result.code == 2 and "camera_gain: got 2.0, goes with a fixed camera_exposure_ms" in result.err

@@ -26,7 +26,8 @@ _WEBCAM = re.compile(r"^webcam:(\d+)$")
 def open_source(spec: str, *, crop: tuple[int, int, int, int] | None = None, loop: bool = False,
                 sim_preset: str = "seed", seed: int = 0,
                 size: tuple[int, int] | None = None, fps: float | None = None,
-                colour: bool = False) -> FrameSource:
+                colour: bool = False, exposure_ms: float | None = None,
+                gain: float | None = None) -> FrameSource:
     """Open the source named by ``spec`` (see the module docstring)."""
     spec = spec or "sim"
     if crop is not None and spec in ("sim", "camera") or (crop is not None and _WEBCAM.match(spec)):
@@ -36,7 +37,8 @@ def open_source(spec: str, *, crop: tuple[int, int, int, int] | None = None, loo
         return SimulatorSource(preset=sim_preset, seed=seed, size=size)
     if spec == "camera":
         from .camera import CameraSource
-        return CameraSource(size=size or (728, 544), fps=fps or 60.0, colour=colour)
+        return CameraSource(size=size or (728, 544), fps=fps or 60.0, colour=colour, exposure_ms=exposure_ms,
+                            gain=gain)
     match = _WEBCAM.match(spec)
     if match:
         from .webcam import WebcamSource

@@ -7,12 +7,13 @@ Picamera2 is not usable from PyPI off the Pi: on Raspberry Pi OS it is the
 
 from __future__ import annotations
 
+import math
 from typing import Any, Callable
 
 from ..errors import UsageError
 from .base import Frame, FrameSource
 
-__all__ = ["CameraSource", "load_picamera2"]
+__all__ = ["CameraSource", "load_picamera2", "camera_controls"]
 
 
 def load_picamera2() -> tuple[Callable[[], Any], Any]:
@@ -26,6 +27,25 @@ def load_picamera2() -> tuple[Callable[[], Any], Any]:
     return Picamera2, MappedArray
 
 
+def camera_controls(fps: float, exposure_ms: float | None = None, gain: float | None = None) -> dict[str, Any]:
+    """The libcamera controls for a frame rate and, when given, a fixed exposure and gain; a bad
+    value is a one-line UsageError naming it and what is allowed."""
+    frame_us = int(round(1e6 / fps))
+    controls: dict[str, Any] = {"FrameDurationLimits": (frame_us, frame_us)}
+    if exposure_ms is None:
+        if gain is not None:
+            raise UsageError("camera gain: goes with a fixed exposure (camera_exposure_ms)")
+        return controls
+    if not (math.isfinite(exposure_ms) and 0 < exposure_ms * 1e3 <= frame_us):
+        raise UsageError(f"camera exposure {exposure_ms} ms: allowed 0 < exposure <= the frame period "
+                         f"({frame_us / 1e3:.2f} ms at {fps:g} frames/s)")
+    gain = 1.0 if gain is None else gain
+    if not (math.isfinite(gain) and 1.0 <= gain <= 64.0):
+        raise UsageError(f"camera gain {gain}: allowed 1.0 to 64")
+    controls.update({"AeEnable": False, "ExposureTime": int(round(exposure_ms * 1e3)), "AnalogueGain": float(gain)})
+    return controls
+
+
 class CameraSource(FrameSource):
     """Frames from the Pi camera, tuned for latency.
 
@@ -36,6 +56,12 @@ class CameraSource(FrameSource):
         place through ``MappedArray`` -- grey without any colour conversion, one
         plane copied out of the camera buffer so the buffer goes straight back;
         True streams ISP-processed BGR (Picamera2's "RGB888" is B, G, R in memory).
+    exposure_ms: a fixed exposure time, milliseconds (0 < exposure <= the frame period), with the
+        camera's automatic exposure and gain off; None (default): automatic.  The light
+        strategies that time the lamp to the exposure (``pulse``, ``flash``) need it short and
+        fixed: automatic exposure stretches it towards the frame period over dark water, across
+        several projector refreshes.
+    gain: the analogue gain with a fixed exposure (1.0 to 64; default 1.0).
     picamera2, mapped_array: the Picamera2 and MappedArray classes (tests pass
         fakes); loaded lazily when None.
 
@@ -49,7 +75,9 @@ class CameraSource(FrameSource):
     live = True
 
     def __init__(self, *, size: tuple[int, int] = (728, 544), fps: float = 60.0, colour: bool = False,
+                 exposure_ms: float | None = None, gain: float | None = None,
                  picamera2: Callable[[], Any] | None = None, mapped_array: Any = None) -> None:
+        controls = camera_controls(fps, exposure_ms, gain)
         if picamera2 is None:
             picamera2, mapped_array = load_picamera2()
         factory = picamera2
@@ -59,11 +87,10 @@ class CameraSource(FrameSource):
             self._cam = factory()
         except (RuntimeError, IndexError, OSError) as exc:
             raise UsageError(f"source 'camera': no camera could be opened ({exc})") from None
-        frame_us = int(round(1e6 / fps))
         # Picamera2's "RGB888" is stored B, G, R per pixel: OpenCV's BGR order.
         config = self._cam.create_video_configuration(
             main={"size": tuple(size), "format": "RGB888" if colour else "YUV420"}, buffer_count=3, queue=False,
-            controls={"FrameDurationLimits": (frame_us, frame_us)})
+            controls=controls)
         self._cam.configure(config)
         self._cam.start()
         self.size = (int(size[0]), int(size[1]))
