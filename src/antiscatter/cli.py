@@ -236,6 +236,9 @@ def build_parser() -> argparse.ArgumentParser:
     rec.add_argument("--overflow", choices=("spill", "stop"), default="spill",
                      help="when the buffer is full: spill to disk in order (default) or stop recording")
     rec.add_argument("--camera-colour", action="store_true", help="BGR from the camera instead of the Y plane")
+    rec.add_argument("--camera-exposure-ms", type=float, help="fixed camera exposure, ms (automatic exposure and "
+                     "gain off; default: automatic)")
+    rec.add_argument("--camera-gain", type=float, help="analogue gain with a fixed exposure, 1-64 (default 1)")
     rec.add_argument("--web", metavar="[HOST:]PORT", help="serve the control panel (127.0.0.1 unless a host is given)")
 
     tw = commands.add_parser(
@@ -737,7 +740,7 @@ def _record(args: argparse.Namespace) -> int:
                             seconds=args.seconds, frames=args.frames, light=args.light == "on",
                             paused=args.paused, outputs=tuple(args.output or ("none",)),
                             buffer_mb=args.buffer_mb, overflow=args.overflow, web=args.web or "",
-                            colour=args.camera_colour)
+                            colour=args.camera_colour, exposure_ms=args.camera_exposure_ms, gain=args.camera_gain)
     summary = record(request)
     if summary["reason"].startswith("stopped by SIGINT"):
         return 130

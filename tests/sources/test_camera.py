@@ -149,3 +149,9 @@ def test_run_refuses_a_bad_camera_exposure_in_one_line(cli):
     assert "camera_exposure_ms: got 20.0, allowed 0 (automatic) to the frame period (16.67 ms)" in result.err
     result = cli("run", "camera", "--camera-gain", "2", "--frames", "1", "--output", "none")
     assert result.code == 2 and "camera_gain: got 2.0, goes with a fixed camera_exposure_ms" in result.err
+
+
+def test_record_takes_the_same_exposure_settings(cli, tmp_path):
+    result = cli("record", str(tmp_path / "r.mkv"), "--source", "camera", "--fps", "60", "--camera-exposure-ms", "40")
+    assert result.code == 2 and "camera exposure 40.0 ms: allowed 0 < exposure <= the frame period" in result.err
+    assert not (tmp_path / "r.mkv").exists()

@@ -31,7 +31,8 @@ class RecordRequest:
     light: the lamp on at the start; paused: start without recording (r starts);
     outputs: light outputs driven as a plain lamp (white / black);
     buffer_mb, overflow: RAM for frames waiting to be encoded, and what to do when full;
-    web: control panel address, empty = none; colour: BGR from the camera instead of the Y plane.
+    web: control panel address, empty = none; colour: BGR from the camera instead of the Y plane;
+    exposure_ms, gain: a fixed camera exposure and analogue gain (None: automatic).
     """
 
     out: Path
@@ -47,6 +48,8 @@ class RecordRequest:
     overflow: str = "spill"
     web: str = ""
     colour: bool = False
+    exposure_ms: float | None = None
+    gain: float | None = None
 
 
 def record(request: RecordRequest, *, log: TextIO | None = None, out: TextIO | None = None) -> dict:
@@ -57,7 +60,8 @@ def record(request: RecordRequest, *, log: TextIO | None = None, out: TextIO | N
         raise UsageError(f"{request.out}: is a folder, expected a .mkv file path")
     with ExitStack() as stack:
         source = stack.enter_context(open_source(request.source, size=request.size, fps=request.fps or None,
-                                                 colour=request.colour))
+                                                 colour=request.colour, exposure_ms=request.exposure_ms,
+                                                 gain=request.gain))
         lamps = [stack.enter_context(open_output(spec, fps=request.fps or 60.0)) for spec in request.outputs]
         white = np.full((800, 1280), 255, np.uint8)
         black = np.zeros_like(white)
