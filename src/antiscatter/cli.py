@@ -409,7 +409,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     else:
         name, params, detector = _detector_from(args)
         if args.folder:
-            from .evaluate.runs import evaluate_source
+            from .evaluate import evaluate_source
 
             source = Path(args.folder)
             if not source.exists():
