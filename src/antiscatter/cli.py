@@ -341,8 +341,9 @@ def _evaluate(args: argparse.Namespace) -> int:
     from .evaluate.report import format_summary, plot_evaluation, scoreboard, sweep_detector, write_frame_csv
     from .simulate.catalogue import load_catalogue
 
-    modes = [bool(args.detections or (args.truth and not args.folder)), bool(args.folder),
-             bool(args.degraded or args.clean), bool(args.scenario), bool(args.catalogue)]
+    csv_pair = bool(args.detections or (args.truth and not args.folder))  # scored as they are
+    modes = [csv_pair, bool(args.folder), bool(args.degraded or args.clean), bool(args.scenario),
+             bool(args.catalogue)]
     if sum(modes) != 1:
         raise UsageError("give exactly one input: --truth with --detections, a SOURCE (with --truth unless it "
                          "is a simulator output folder), --degraded with --clean, --scenario NAME, or --catalogue")
@@ -388,7 +389,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     if args.track and not (args.scenario or args.folder):
         raise UsageError("--track goes with --scenario or a SOURCE (a detections CSV with track_id is scored for "
                          "tracking by itself)")
-    if args.detections or (args.truth and not args.folder):
+    if csv_pair:
         if not (args.truth and args.detections):
             raise UsageError("--truth and --detections go together")
         from .evaluate.runs import read_csv_pair, score_csv_pair
@@ -410,6 +411,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         name, params, detector = _detector_from(args)
         if args.folder:
             from .evaluate import evaluate_source
+            from .evaluate.runs import evaluate_source_tracking
 
             source = Path(args.folder)
             if not source.exists():
@@ -418,7 +420,8 @@ def _evaluate(args: argparse.Namespace) -> int:
             run = lambda d: evaluate_source(source, d, m, truth_path, args.frames)  # noqa: E731
             title = f"detector {name} on {source}" + (f" against {truth_path}" if truth_path else "")
             if args.track:
-                extra.update(_track_source(source, truth_path, detector, m, args.fps, args.frames))
+                extra.update(evaluate_source_tracking(source, detector, m, truth_path, fps=args.fps,
+                                                      limit=args.frames))
         elif args.scenario:
             from .evaluate.runs import evaluate_scenario
 
@@ -466,31 +469,6 @@ def _evaluate(args: argparse.Namespace) -> int:
             print("  prediction error: " + ", ".join(
                 f"{k} frames {v['mean_px']:.2f} px (p95 {v['p95_px']:.2f})" for k, v in extra["prediction"].items()))
     return 0
-
-
-def _track_source(source, truth_path, detector, m, fps: float | None, limit: int | None) -> dict:
-    """Tracking figures of the default tracker on a folder of frames or a video with truth ids."""
-    from .evaluate.runs import evaluate_tracking, source_truth_frames
-    from .evaluate.tables import FrameTruth
-
-    if fps is None:
-        fps = 60.0
-        if source.is_file():
-            from .sources.video import VideoSource
-
-            with VideoSource(source) as video:
-                fps = video.fps or fps
-    empty = FrameTruth(np.empty((0, 2)), np.empty(0), np.empty(0, bool), np.empty(0, np.int64),
-                       np.empty(0, np.int64))
-
-    def frames():
-        for number, image, truth, _ in source_truth_frames(source, m, truth_path, limit):
-            truth = truth if truth is not None else empty
-            if (truth.ids < 0).any():
-                raise UsageError(f"{truth_path or source / 'truth.csv'}: tracking figures need particle ids "
-                                 "(an 'id' column, or the simulator's 'Bubble ID')")
-            yield number, image, truth
-    return evaluate_tracking(frames(), detector, m, fps=fps)
 
 
 def _bench(args: argparse.Namespace) -> int:

@@ -321,12 +321,15 @@ class BackgroundModel:
         self._profiles: tuple | None = None  # the background opened at half resolution, its profiles (follow)
         self._profiled = 0  # frames since they were taken
         self._typical_noise = 0.0  # the noise map's median
-        self._last: np.ndarray | None = None  # match_gain's rows of the last frame (None: not to compare)
-        self._grid_index = np.empty(0, np.intp)  # the pixels it compares (flat indices), and frames
-        self._grid_age = 0  # since they were chosen, for frames of this shape
-        self._grid_shape: tuple[int, int] | None = None
-        self._grid_rows = np.empty(0, np.intp)
-        self._gain = 1.0  # brightness change since the background was last scaled, and its variance
+        # match_gain: the rows it reads, for frames of this shape; the pixels of them it compares
+        # (flat indices) and frames since they were chosen; the last frame's rows (None: nothing
+        # to compare); the brightness change since the background was last scaled, its variance
+        self._gain_shape: tuple[int, int] | None = None
+        self._gain_rows = np.empty(0, np.intp)
+        self._gain_pixels = np.empty(0, np.intp)
+        self._gain_age = 0
+        self._gain_last: np.ndarray | None = None
+        self._gain = 1.0
         self._gain_var = 0.0
 
     def _rows(self, band: int, height: int) -> tuple[int, int, int, int]:
@@ -339,10 +342,10 @@ class BackgroundModel:
         """(base, limit) for this frame, both uint8 (h, w).  The learnt background follows the view
         when it pans; a new scene starts the model again."""
         if self.background is not None and self.background.shape == half.shape:
-            if self.alpha > 0.0 and self.follows and self.follow(half) != (0, 0):
-                # the view moved: the last frame's pixels are elsewhere now, start again
-                self._last, self._gain, self._gain_var = None, 1.0, 0.0
             if self.alpha > 0.0:
+                if self.follows and self.follow(half) != (0, 0):
+                    # the view moved: the last frame's pixels are elsewhere now, start again
+                    self._gain_last, self._gain, self._gain_var = None, 1.0, 0.0
                 self.match_gain(half)
             if self.new_scene(half):
                 self.reset()
@@ -466,9 +469,8 @@ class BackgroundModel:
 
         The change from the last frame is the ratio of the two frames' sums over about
         ``GAIN_SAMPLES`` pixels of rows spread over the frame whose learnt background is at
-        least ``GAIN_MIN_LEVEL``,
-        leaving out those whose difference is far from the typical one (particles, moving, are
-        a few per cent of them).  The two frames being alike, it is unbiased whatever the
+        least ``GAIN_MIN_LEVEL``, leaving out those whose difference is far from the typical
+        one (particles, moving, are a few per cent of them).  The two frames being alike, it is unbiased whatever the
         noise's shape; a median of ratios stuck at exactly 1 on whole grey levels, and pixels
         chosen by either frame's brightness biased it by their noise.  Its standard error
         comes from what the ratio leaves unexplained.  The changes are multiplied up, with
@@ -482,28 +484,28 @@ class BackgroundModel:
         ``follow`` takes up, or the scene changed).  During the warm-up the background learns
         fast enough to follow by itself.  About 40 us a frame at 800x600, 80 at 1456x1088 (in the
         bench, 3 % of the detector).  Returns the factor applied (1.0: none)."""
-        if self._grid_shape != half.shape:
-            h, w = self._grid_shape = half.shape
+        if self._gain_shape != half.shape:
+            h, w = self._gain_shape = half.shape
             # whole rows spread over the frame, read as contiguous memory (every pixel sees the
             # same exposure): enough of them for GAIN_SAMPLES pixels
             count = max(2, min(h, -(-self.GAIN_SAMPLES // w)))
-            self._grid_rows = (np.arange(count) * (h - 1) // (count - 1)).astype(np.intp)
-            self._grid_age = self.bands
-            self._last = None
+            self._gain_rows = (np.arange(count) * (h - 1) // (count - 1)).astype(np.intp)
+            self._gain_age = self.bands
+            self._gain_last = None
         # those rows of this frame and of the last (a copy: the frame itself is not kept alive)
-        rows, previous = half[self._grid_rows], self._last
-        self._last = rows
+        rows, previous = half[self._gain_rows], self._gain_last
+        self._gain_last = rows
         if not self.learnt() or previous is None:
             return 1.0
-        if self._grid_age >= self.bands:  # the pixels used, chosen again as the background is learnt:
+        if self._gain_age >= self.bands:  # the pixels used, chosen again as the background is learnt:
             # by the learnt background -- chosen by either frame, their noise would bias the ratio
-            self._grid_index = np.flatnonzero(self.background[self._grid_rows] >= self.GAIN_MIN_LEVEL)
-            self._grid_age = 0
-        self._grid_age += 1
-        if len(self._grid_index) < self.GAIN_SAMPLES // 10:
+            self._gain_pixels = np.flatnonzero(self.background[self._gain_rows] >= self.GAIN_MIN_LEVEL)
+            self._gain_age = 0
+        self._gain_age += 1
+        if len(self._gain_pixels) < self.GAIN_SAMPLES // 10:
             return 1.0
-        now = rows.reshape(-1).take(self._grid_index).astype(np.float32)
-        before = previous.reshape(-1).take(self._grid_index).astype(np.float32)
+        now = rows.reshape(-1).take(self._gain_pixels).astype(np.float32)
+        before = previous.reshape(-1).take(self._gain_pixels).astype(np.float32)
         diff = now - before
         middle = _middle(diff)
         deviation = np.abs(diff - middle)

@@ -16,14 +16,7 @@ import numpy as np
 
 from ..errors import UsageError
 
-__all__ = ["reference_truth", "pair_files", "msrb_pairs", "read_image"]
-
-
-def read_image(path: Path) -> np.ndarray:
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if image is None:
-        raise UsageError(f"{path}: not a readable image")
-    return image
+__all__ = ["reference_truth", "pair_files", "msrb_pairs"]
 
 
 def reference_truth(degraded: np.ndarray, clean: np.ndarray, *, rise: float = 20.0,

@@ -13,11 +13,13 @@ from ..detection import Detector
 from ..errors import UsageError
 from ..simulate import make_scene
 from .metrics import FrameScore, score_frame
-from .reference import read_image, reference_truth
+from ..sources.folder import frame_files, no_frames, read_frame
+from ..sources.video import VideoSource
+from .reference import reference_truth
 from .tables import FrameTruth, read_detections, read_truth
 
-__all__ = ["Matching", "evaluate_csv", "evaluate_folder", "evaluate_source", "evaluate_scenario",
-           "evaluate_pairs", "scenario_frames", "source_truth_frames"]
+__all__ = ["Matching", "evaluate_csv", "evaluate_folder", "evaluate_source", "evaluate_source_tracking",
+           "evaluate_scenario", "evaluate_pairs", "scenario_frames", "source_truth_frames"]
 
 
 @dataclass(frozen=True)
@@ -89,9 +91,6 @@ def source_truth_frames(source: Path, m: Matching, truth_path: Path | None = Non
     decoding order for a video (a folder's truth may name its frames by file name instead);
     ``limit``: the first so many frames only.  Label images
     (``masks/<frame file>``) only with the simulator's truth."""
-    from ..sources.folder import frame_files, no_frames, read_frame
-    from ..sources.video import VideoSource
-
     if truth_path is None:
         truth_path = source / "truth.csv"
         if not source.is_dir() or not truth_path.is_file():
@@ -148,6 +147,29 @@ def evaluate_source(source: Path, detector: Detector, m: Matching, truth_path: P
     return scores
 
 
+def evaluate_source_tracking(source: Path, detector: Detector, m: Matching, truth_path: Path | None = None, *,
+                             fps: float | None = None, limit: int | None = None) -> dict[str, Any]:
+    """:func:`evaluate_tracking` on a folder of frames or a video file with truth ids
+    (:func:`source_truth_frames`); ``fps``: the frame rate the tracker assumes (None: the
+    video's, else 60)."""
+    if fps is None:
+        fps = 60.0
+        if source.is_file():
+            with VideoSource(source) as video:
+                fps = video.fps or fps
+    empty = FrameTruth(np.empty((0, 2)), np.empty(0), np.empty(0, bool), np.empty(0, np.int64),
+                       np.empty(0, np.int64))
+
+    def frames():
+        for number, image, truth, _ in source_truth_frames(source, m, truth_path, limit):
+            truth = truth if truth is not None else empty
+            if (truth.ids < 0).any():
+                raise UsageError(f"{truth_path or source / 'truth.csv'}: tracking figures need particle ids "
+                                 "(an 'id' column, or the simulator's 'Bubble ID')")
+            yield number, image, truth
+    return evaluate_tracking(frames(), detector, m, fps=fps)
+
+
 def evaluate_folder(folder: Path, detector: Detector, m: Matching) -> list[FrameScore]:
     """Run ``detector`` on a simulator output folder; pixel metrics where masks/ exist."""
     return evaluate_source(folder, detector, m)
@@ -192,7 +214,8 @@ def evaluate_pairs(pairs: list[tuple[Path, Path]], detector: Detector, m: Matchi
     """Score ``detector`` on real degraded images against truth from their clean references."""
     scores = []
     for index, (degraded_path, clean_path) in enumerate(pairs):
-        degraded, clean = read_image(degraded_path), read_image(clean_path)
+        degraded, bits = read_frame(degraded_path)
+        clean, _ = read_frame(clean_path, bits)  # a 16-bit pair scaled alike
         try:
             centres, radii, particle, small = reference_truth(degraded, clean, rise=rise, min_area=min_area)
         except ValueError as exc:

@@ -61,10 +61,11 @@ def _number(path: Path, line: int, name: str, text: str, *, integer: bool = Fals
     return value
 
 
-#: the columns of a truth CSV: the simulator's (the report's names), or the plain ones of a
-#: detections CSV, which hand annotations can use (radius and id optional)
-SIMULATOR_COLUMNS = ("Frame #", "X Position", "Y Position", "Radius")
-PLAIN_COLUMNS = ("frame", "x", "y")
+#: the columns of a truth CSV -- frame, x, y, radius, id -- as the simulator names them (the
+#: report's names; the first four required), and as a detections CSV does, which hand
+#: annotations can use (the first three required; the id also as ``track_id``)
+SIMULATOR_COLUMNS = ("Frame #", "X Position", "Y Position", "Radius", "Bubble ID")
+PLAIN_COLUMNS = ("frame", "x", "y", "radius", "id")
 
 
 def read_truth(path: str | Path, *, min_visibility: float = 0.5, min_snr: float = 5.0,
@@ -76,9 +77,9 @@ def read_truth(path: str | Path, *, min_visibility: float = 0.5, min_snr: float 
     when its Visibility >= ``min_visibility``, its Label > 0 and its SNR >= ``min_snr``
     (columns that are absent count as satisfied); or the plain ``frame,x,y`` of a detections
     CSV, with optional ``radius`` and ``id`` (or ``track_id``, as ``run --detections`` writes)
-    -- hand annotations, every row counted.  Without
-    a radius (points clicked on particle centres) a detection matches within the matching's
-    smallest distance (``--min-gate``).  Other columns are allowed and ignored.
+    -- hand annotations, every row counted.  Without a radius (points clicked on particle
+    centres) a detection matches within the matching's smallest distance (``--min-gate``).
+    Other columns are allowed and ignored.
     ``frame_names``: file name -> frame number of the frames' folder; the plain ``frame``
     column may then name each row's image file (as annotation tools export) instead of its
     number.
@@ -88,16 +89,16 @@ def read_truth(path: str | Path, *, min_visibility: float = 0.5, min_snr: float 
     if index is None:
         raise UsageError(f"{path}: empty; expected the header frame,x,y[,radius][,id] or the simulator's "
                          "Bubble ID,Frame #,X Position,Y Position,Radius")
-    plain = all(c in index for c in PLAIN_COLUMNS)
+    plain = all(c in index for c in PLAIN_COLUMNS[:3])
     if not plain:
-        missing = [c for c in SIMULATOR_COLUMNS if c not in index]
+        missing = [c for c in SIMULATOR_COLUMNS[:4] if c not in index]
         if missing:
             raise UsageError(f"{path}: missing column {missing[0]!r} (header has: {', '.join(index)}); "
                              "allowed headers: frame,x,y[,radius][,id] or the simulator's "
                              "Frame #,X Position,Y Position,Radius")
-    names = (("frame", "x", "y", "radius", "id" if "id" in index else "track_id") if plain else
-             ("Frame #", "X Position", "Y Position", "Radius", "Bubble ID"))
-    c_frame, c_x, c_y, c_r, c_id = names
+    c_frame, c_x, c_y, c_r, c_id = PLAIN_COLUMNS if plain else SIMULATOR_COLUMNS
+    if plain and c_id not in index:
+        c_id = "track_id"
     frames: dict[int, list] = {}
     for line, row in rows:
         if not row:
