@@ -204,6 +204,26 @@ def test_pixels_with_a_wrong_background_do_not_take_their_cells_noise(cap, monke
         assert cells.max() > 3 * clean
 
 
+def test_on_textured_ground_the_frames_after_the_first_replace_its_spatial_background():
+    # the first frame's background comes from that frame alone and misses the texture: the noise
+    # measured against it is the texture's.  The frames after it are the evidence (with the spatial
+    # start weighted as one of them, the estimate was still 1.5x the sensor's by the fourth frame)
+    from antiscatter.detection.contrast import BackgroundModel
+
+    rng = np.random.default_rng(2)
+    ground = 20 + 100 * fractal_noise((400, 300), rng, octaves=6, base=8)
+    model = BackgroundModel(cell=8, memory=20, window=14)
+    none = np.zeros((300, 400), np.uint8)
+    noise = []
+    for _ in range(BackgroundModel.WARMUP + 4):
+        half = np.clip(np.rint(ground + rng.normal(0, 1.0, ground.shape)), 0, 255).astype(np.uint8)
+        model.estimate(half)
+        model.learn(half, none)
+        noise.append(float(np.median(model.noise)))
+    assert noise[0] > 3 * noise[-1]  # the texture, as the spatial background leaves it
+    assert noise[3] < 1.3 * noise[-1]  # by the fourth frame, the sensor's
+
+
 @pytest.mark.parametrize("level", [20.0, 20.25, 20.5, 20.75])
 def test_the_noise_estimate_does_not_depend_on_where_the_level_falls_between_grey_levels(level):
     # a low-noise sensor: after 2x2 pooling the working image's noise is well under a grey level,
