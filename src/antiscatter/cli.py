@@ -151,7 +151,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Score detections against ground truth. Inputs, one of: --truth CSV --detections CSV; "
                     "a SOURCE -- a simulator output folder (runs --detector; pixel metrics where masks/ exist), "
                     "or your own annotated frames (a folder of images or a video file) with --truth CSV "
-                    "(frame,x,y[,radius][,id]: frames numbered from 0 in order); "
+                    "(frame,x,y[,radius][,id]: frames numbered from 0 in order; or MOTChallenge gt.txt); "
                     "--degraded/--clean real image pairs (files or folders with equal names); --scenario NAME "
                     "(generated in memory); --catalogue (every detector on every catalogued scenario and the "
                     "real images: writes the scoreboard).",
@@ -166,9 +166,11 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("folder", nargs="?", metavar="SOURCE",
                     help="a simulator output folder (frames, truth.csv, masks/), or a folder of frames or a "
                          "video file with --truth")
-    ev.add_argument("--truth", metavar="CSV", help="truth: the simulator's truth.csv, or frame,x,y[,radius][,id] "
-                    "(hand annotations; without radius a detection matches within --min-gate)")
-    ev.add_argument("--detections", metavar="CSV", help="frame,x,y,radius as 'run --detections' writes")
+    ev.add_argument("--truth", metavar="CSV", help="truth: the simulator's truth.csv, frame,x,y[,radius][,id] "
+                    "(hand annotations; without radius a detection matches within --min-gate), or "
+                    "MOTChallenge ground truth (gt.txt, CVAT's 'MOT 1.1' export: boxes as discs, frames from 1)")
+    ev.add_argument("--detections", metavar="CSV", help="frame,x,y,radius as 'run --detections' writes, or another "
+                    "tracker's MOTChallenge results")
     ev.add_argument("--degraded", metavar="PATH", help="real image(s) with particles")
     ev.add_argument("--clean", metavar="PATH", help="the same image(s) without particles")
     ev.add_argument("--scenario", help="a catalogued scenario, generated in memory")

@@ -146,6 +146,60 @@ def test_point_annotations_match_within_min_gate(sim, tmp_path, cli):
     assert result.code == 0 and json.loads(result.out)["tracking"]["idf1"] > 0
 
 
+def _mot(annotations):
+    """Plain annotations frame,x,y,radius,id rewritten as MOTChallenge lines (frames from 1, boxes)."""
+    lines = []
+    for row in annotations.read_text().splitlines()[1:]:
+        frame, x, y, r, ident = (float(v) for v in row.split(","))
+        lines.append(f"{int(frame) + 1},{int(ident)},{x - r!r},{y - r!r},{2 * r!r},{2 * r!r},1,1,1.0")
+    return lines
+
+
+def test_motchallenge_files_score_as_the_plain_annotations(sim, tmp_path, cli):
+    # ground truth from annotation tools (CVAT's "MOT 1.1" export) and other trackers' results
+    annotations = _annotations(sim, tmp_path)
+    lines = _mot(annotations)
+    # boxes to ignore (the considered flag 0, or hardly visible) are neither to be found nor false alarms
+    lines += ["2,900,5,5,4,4,0,1,1.0", "3,901,700,20,6,6,1,1,0.1"]
+    (tmp_path / "gt.txt").write_text("\n".join(lines) + "\n")
+    plain = json.loads(cli("evaluate", str(sim), "--truth", str(annotations), "--track", "--json").out)
+    result = cli("evaluate", str(sim), "--truth", str(tmp_path / "gt.txt"), "--track", "--json")
+    assert result.code == 0, result.err
+    mot = json.loads(result.out)
+    assert mot["overall"]["tp"] == plain["overall"]["tp"] > 0
+    assert mot["overall"]["fn"] == plain["overall"]["fn"] and mot["overall"]["fp"] == plain["overall"]["fp"]
+    assert mot["tracking"]["idf1"] == plain["tracking"]["idf1"]
+    # results of another tracker, MOTChallenge lines scored against the simulator's truth
+    assert cli("run", str(sim), "--output", "none", "--detections", str(tmp_path / "d.csv")).code == 0
+    rows = [r.split(",") for r in (tmp_path / "d.csv").read_text().splitlines()]
+    index = {name: i for i, name in enumerate(rows[0])}
+    results = [f"{int(r[index['frame']]) + 1},-1,{float(r[index['x']]) - float(r[index['radius']])!r},"
+               f"{float(r[index['y']]) - float(r[index['radius']])!r},{2 * float(r[index['radius']])!r},"
+               f"{2 * float(r[index['radius']])!r},0.9,-1,-1,-1" for r in rows[1:]]
+    (tmp_path / "results.txt").write_text("\n".join(results) + "\n")
+    a = json.loads(cli("evaluate", "--truth", str(sim / "truth.csv"), "--detections", str(tmp_path / "d.csv"),
+                       "--json").out)["overall"]
+    b = cli("evaluate", "--truth", str(sim / "truth.csv"), "--detections", str(tmp_path / "results.txt"), "--json")
+    assert b.code == 0, b.err
+    assert {k: json.loads(b.out)["overall"][k] for k in ("tp", "fp", "fn")} == {k: a[k] for k in ("tp", "fp", "fn")}
+
+
+@pytest.mark.parametrize("content, message", [
+    ("0,1,10,10,4,4\n", "row 1: frame 0: MOTChallenge frames are numbered from 1"),
+    ("1,1.5,10,10,4,4\n", "row 1: id '1.5' is not an integer"),
+    ("1,1,10,10,-4,4\n", "row 1: bb_width and bb_height must be >= 0"),
+    ("1,1,10,10,4,4\n2,1,10,10,4\n", "row 2: has 5 fields; a MOTChallenge line has at least 6"),
+    ("1,1,10,10,4,4\n2,1,10,10,4,oops\n", "row 2: bb_height 'oops' is not a number"),
+    ("7,1,10,10,4,4\n", "frame 6 is beyond the last frame of"),
+])
+def test_bad_motchallenge_files(sim, tmp_path, cli, content, message):
+    (tmp_path / "gt.txt").write_text(content)
+    result = cli("evaluate", str(sim), "--truth", str(tmp_path / "gt.txt"))
+    assert result.code == 2, result.err
+    assert len(result.err.strip().splitlines()) == 1
+    assert message in result.err and "gt.txt" in result.err
+
+
 @pytest.mark.parametrize("content, message", [
     ("frame,x\n0,1\n", "missing column 'Frame #'"),
     ("frame,x,y\n0,1,oops\n", "row 2: y 'oops' is not a number"),

@@ -26,7 +26,9 @@ class FrameTruth:
     ids: np.ndarray | None = None
 
 
-def _rows(path: Path, required: tuple[str, ...]):
+def _rows(path: Path) -> tuple[list[str] | None, list[tuple[int, list[str]]]]:
+    """(the first row, stripped -- a header, or a MOTChallenge line --, the other rows numbered
+    from 2); (None, []) for an empty file."""
     try:
         handle = path.open(newline="")
     except FileNotFoundError:
@@ -37,14 +39,61 @@ def _rows(path: Path, required: tuple[str, ...]):
         reader = csv.reader(handle)
         header = next(reader, None)
         if header is None:
-            return None, iter(())
-        header = [h.strip() for h in header]
-        missing = [c for c in required if c not in header]
-        if missing:
-            raise UsageError(f"{path}: missing column {missing[0]!r} (header has: {', '.join(header)})")
-        index = {name: header.index(name) for name in header}
-        rows = list(enumerate(reader, start=2))
-    return index, iter(rows)
+            return None, []
+        return [h.strip() for h in header], list(enumerate(reader, start=2))
+
+
+def _index(path: Path, header: list[str], required: tuple[str, ...]) -> dict[str, int]:
+    """Column name -> position; a required column missing is an error naming the file."""
+    missing = [c for c in required if c not in header]
+    if missing:
+        raise UsageError(f"{path}: missing column {missing[0]!r} (header has: {', '.join(header)})")
+    return {name: header.index(name) for name in header}
+
+
+#: MOTChallenge ground truth and results, as the benchmark's devkit and annotation tools (CVAT's
+#: "MOT 1.1" export) write them: no header; frame (numbered from 1), id, bb_left, bb_top,
+#: bb_width, bb_height (pixels), then optionally whether the box is considered (0 = ignore it),
+#: class and visibility (0..1); later columns are ignored
+MOT_COLUMNS = ("frame", "id", "bb_left", "bb_top", "bb_width", "bb_height", "considered", "class", "visibility")
+
+
+def _is_mot(first: list[str]) -> bool:
+    """True when a file's first row is a MOTChallenge line (six or more numbers), not a header."""
+    if len(first) < 6:
+        return False
+    try:
+        [float(field) for field in first]
+    except ValueError:
+        return False
+    return True
+
+
+def _mot_rows(path: Path, first: list[str], rows: list[tuple[int, list[str]]]):
+    """The boxes of a MOTChallenge file as discs: (line, frame from 0, id, x, y, radius, considered,
+    visibility) -- the box's centre, and half its mean side for the radius (a particle's box
+    encloses it)."""
+    for line, row in [(1, first)] + rows:
+        if not "".join(row).strip():
+            continue
+        if len(row) < 6:
+            raise UsageError(f"{path} row {line}: has {len(row)} fields; a MOTChallenge line has at least 6: "
+                             "frame,id,bb_left,bb_top,bb_width,bb_height")
+        values = [_number(path, line, name, text.strip()) for name, text in zip(MOT_COLUMNS, row)]
+        for name in ("frame", "id"):
+            value = values[MOT_COLUMNS.index(name)]
+            if value != int(value):
+                raise UsageError(f"{path} row {line}: {name} {row[MOT_COLUMNS.index(name)].strip()!r} is not "
+                                 "an integer")
+        frame, ident = int(values[0]), int(values[1])
+        if frame < 1:
+            raise UsageError(f"{path} row {line}: frame {frame}: MOTChallenge frames are numbered from 1")
+        left, top, width, height = values[2:6]
+        if width < 0 or height < 0:
+            raise UsageError(f"{path} row {line}: bb_width and bb_height must be >= 0; got {width:g}, {height:g}")
+        considered = values[6] != 0 if len(values) > 6 else True
+        visibility = values[8] if len(values) > 8 else 1.0
+        yield line, frame - 1, ident, left + width / 2, top + height / 2, (width + height) / 4, considered, visibility
 
 
 def _number(path: Path, line: int, name: str, text: str, *, integer: bool = False,
@@ -85,17 +134,20 @@ def read_truth(path: str | Path, *, min_visibility: float = 0.5, min_snr: float 
     number.
     """
     path = Path(path)
-    index, rows = _rows(path, ())
-    if index is None:
-        raise UsageError(f"{path}: empty; expected the header frame,x,y[,radius][,id] or the simulator's "
-                         "Bubble ID,Frame #,X Position,Y Position,Radius")
+    header, rows = _rows(path)
+    if header is None:
+        raise UsageError(f"{path}: empty; expected the header frame,x,y[,radius][,id], the simulator's "
+                         "Bubble ID,Frame #,X Position,Y Position,Radius, or MOTChallenge lines")
+    if _is_mot(header):
+        return _mot_truth(path, header, rows, min_visibility)
+    index = _index(path, header, ())
     plain = all(c in index for c in PLAIN_COLUMNS[:3])
     if not plain:
         missing = [c for c in SIMULATOR_COLUMNS[:4] if c not in index]
         if missing:
             raise UsageError(f"{path}: missing column {missing[0]!r} (header has: {', '.join(index)}); "
-                             "allowed headers: frame,x,y[,radius][,id] or the simulator's "
-                             "Frame #,X Position,Y Position,Radius")
+                             "allowed: the header frame,x,y[,radius][,id], the simulator's "
+                             "Frame #,X Position,Y Position,Radius, or MOTChallenge lines without a header")
     c_frame, c_x, c_y, c_r, c_id = PLAIN_COLUMNS if plain else SIMULATOR_COLUMNS
     if plain and c_id not in index:
         c_id = "track_id"
@@ -130,6 +182,20 @@ def read_truth(path: str | Path, *, min_visibility: float = 0.5, min_snr: float 
             raise UsageError(f"{path} row {line}: Visibility, Label or SNR is not a number") from None
         counted = plain or (vis >= min_visibility and label > 0 and snr >= min_snr)
         frames.setdefault(frame, []).append((x, y, r, counted, label, ident))
+    return _frame_truth(frames)
+
+
+def _mot_truth(path: Path, first: list[str], rows: list, min_visibility: float) -> dict[int, FrameTruth]:
+    """read_truth of a MOTChallenge file: a box counts when it is considered and its visibility is at
+    least ``min_visibility`` (the rest is neither to be found nor a false alarm)."""
+    frames: dict[int, list] = {}
+    for _, frame, ident, x, y, r, considered, visibility in _mot_rows(path, first, rows):
+        frames.setdefault(frame, []).append((x, y, r, considered and visibility >= min_visibility, -1, ident))
+    return _frame_truth(frames)
+
+
+def _frame_truth(frames: dict[int, list]) -> dict[int, FrameTruth]:
+    """{frame: [(x, y, radius, counted, label, id), ...]} -> {frame: FrameTruth}."""
     out = {}
     for frame, items in frames.items():
         arr = np.array([item[:3] for item in items], dtype=np.float64).reshape(-1, 3)
@@ -141,7 +207,8 @@ def read_truth(path: str | Path, *, min_visibility: float = 0.5, min_snr: float 
 
 def read_detections(path: str | Path, *, frames: range | None = None,
                     frames_source: str = "") -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """A detections CSV (``frame,x,y,radius``, optional ``track_id``, more columns allowed)
+    """A detections CSV (``frame,x,y,radius``, optional ``track_id``, more columns allowed) or
+    MOTChallenge results (another tracker's: see ``MOT_COLUMNS``; frames from 1, each box a disc)
     -> {frame: (centres, radii, track ids or -1)}.
 
     An empty file (or a header alone) is valid: no detections.  ``frames`` is the
@@ -151,10 +218,27 @@ def read_detections(path: str | Path, *, frames: range | None = None,
     path = Path(path)
     if path.exists() and path.is_file() and path.stat().st_size == 0:
         return {}
-    index, rows = _rows(path, ("frame", "x", "y", "radius"))
-    if index is None:
+    header, rows = _rows(path)
+    if header is None:
         return {}
+    mot = _is_mot(header)
+    if mot:  # another tracker's MOTChallenge results: its boxes as discs, its ids
+        boxes = ((line, frame, x, y, r, ident) for line, frame, ident, x, y, r, _, _ in _mot_rows(path, header, rows))
+    else:
+        boxes = _detection_rows(path, _index(path, header, ("frame", "x", "y", "radius")), rows)
     found: dict[int, list] = {}
+    for line, frame, x, y, r, track in boxes:
+        if frames is not None and frame not in frames:
+            numbering = " (counted from 0: the file's MOTChallenge frame numbers less 1)" if mot else ""
+            raise UsageError(f"{path} row {line}: frame {frame}{numbering} is not in {frames_source or 'the truth'} "
+                             f"(frames {frames.start}..{frames.stop - 1})")
+        found.setdefault(frame, []).append((x, y, r, track))
+    return {f: (np.array(v)[:, :2], np.array(v)[:, 2], np.array(v)[:, 3].astype(np.int64))
+            for f, v in found.items()}
+
+
+def _detection_rows(path: Path, index: dict[str, int], rows: list[tuple[int, list[str]]]):
+    """(line, frame, x, y, radius, track id or -1) of each row of a detections CSV."""
     for line, row in rows:
         if not row:
             continue
@@ -167,9 +251,4 @@ def read_detections(path: str | Path, *, frames: range | None = None,
                      if "track_id" in index else -1)
         except IndexError:
             raise UsageError(f"{path} row {line}: has {len(row)} fields, the header has {len(index)}") from None
-        if frames is not None and frame not in frames:
-            raise UsageError(f"{path} row {line}: frame {frame} is not in {frames_source or 'the truth'} "
-                             f"(frames {frames.start}..{frames.stop - 1})")
-        found.setdefault(frame, []).append((x, y, r, track))
-    return {f: (np.array(v)[:, :2], np.array(v)[:, 2], np.array(v)[:, 3].astype(np.int64))
-            for f, v in found.items()}
+        yield line, frame, x, y, r, track
