@@ -597,6 +597,60 @@ def test_the_background_follows_vertical_and_diagonal_pans(move):
         assert (np.hypot(x - px, y - (py + 29)) < 3).any()
 
 
+def _turning_view(turn_deg, zoom, pan, frames=50):
+    """Views of fractal ground that turn ``turn_deg`` degrees, scale by 1 + ``zoom`` and pan ``pan``
+    px a frame, with noise and 20 particles drifting down (x, y of each)."""
+    rng = np.random.default_rng(1)
+    ground = (40 + 50 * fractal_noise((1400, 1400), rng, octaves=4, base=4)).astype(np.float32)
+    particles = [(40 + 37 * k % 560, 40 + (53 * k) % 400) for k in range(20)]
+    for i in range(frames):
+        m = cv2.getRotationMatrix2D((700.0 + pan * i, 700.0), turn_deg * i, (1 + zoom) ** i)
+        m[:, 2] += np.array([320 - 700 - pan * i, 240 - 700])  # that ground point at the view's centre
+        view = cv2.warpAffine(ground, m, (640, 480), flags=cv2.INTER_LINEAR)
+        frame = np.clip(view + rng.normal(0, 2.0, view.shape), 0, 255).astype(np.uint8)
+        for x, y in particles:
+            cv2.circle(frame, (x, (y + i) % 470), 2, 200, -1)
+        yield frame
+
+
+@pytest.mark.parametrize("turn, zoom, pan", [(0.1, 0.0, 0.0), (0.0, 0.005, 0.0), (0.1, 0.003, 3.0)])
+@pytest.mark.parametrize("register", [True, False])
+def test_the_background_turns_and_scales_with_the_view(turn, zoom, pan, register, monkeypatch):
+    # the vehicle yawing, closing on the ground, and both as it goes: follow() takes translation only
+    from antiscatter.detection.contrast import BackgroundModel
+
+    if not register:
+        monkeypatch.setattr(BackgroundModel, "register", lambda self, half: False)
+    detector = make_detector("contrast")
+    counts = [len(detector.detect(frame)) for frame in _turning_view(turn, zoom, pan)]
+    if register:
+        assert np.mean(counts[20:]) <= 23 and max(counts[20:]) <= 40, counts
+    else:  # the texture shows through as particles
+        assert np.mean(counts[20:]) > 40
+
+
+def test_a_still_view_is_never_turned(monkeypatch):
+    # particles of all sizes crossing still textured ground, a big bright one among them: the looks
+    # find nothing to turn, and the background stays where it is
+    from antiscatter.detection.contrast import BackgroundModel
+
+    moves = []
+    original = BackgroundModel.register
+    monkeypatch.setattr(BackgroundModel, "register", lambda self, half: moves.append(original(self, half)) or moves[-1])
+    rng = np.random.default_rng(3)
+    ground = 30 + 60 * fractal_noise((640, 480), rng, octaves=5, base=4)
+    spots = rng.uniform([0, 0], [640, 480], (60, 2))
+    sizes = rng.uniform(1, 6, 60)
+    detector = make_detector("contrast")
+    for i in range(80):
+        frame = ground + rng.normal(0, 2.0, ground.shape)
+        for (x, y), r in zip(spots, sizes):
+            cv2.circle(frame, (int(x + 3 * i) % 640, int(y + r * i) % 480), int(r), 160, -1)
+        cv2.circle(frame, (int(8 * i) % 640, 240), 30, 250, -1)
+        detector.detect(np.clip(frame, 0, 255).astype(np.uint8))
+    assert len(moves) == 79 and sum(moves) == 0  # asked at every frame after the first, never moved
+
+
 def test_pooling_keeps_a_speck_smaller_than_a_pixel():
     frame = np.full((8, 8), 40, np.uint8)
     frame[2, 5] = 100  # one full-resolution pixel: a speck
