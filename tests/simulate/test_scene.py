@@ -204,3 +204,60 @@ def test_same_seed_same_frames_and_truth():
         b.step()
     np.testing.assert_array_equal(a.render(), b.render())
     np.testing.assert_array_equal(a.truth().centres, b.truth().centres)
+
+
+def _moved(before, after):
+    """(turn in degrees, scale, shift at the centre) of the similarity taking ``before`` to ``after``
+    (grey views of the same surface), from optical flow on a grid of points."""
+    ys, xs = np.mgrid[20:before.shape[0] - 20:16, 20:before.shape[1] - 20:16]
+    points = np.column_stack([xs.ravel(), ys.ravel()]).astype(np.float32).reshape(-1, 1, 2)
+    moved, status, _ = cv2.calcOpticalFlowPyrLK(before, after, points, None, winSize=(21, 21), maxLevel=3)
+    ok = status.ravel() == 1
+    m, _ = cv2.estimateAffinePartial2D(points[ok], moved[ok], method=cv2.RANSAC, ransacReprojThreshold=0.5)
+    centre = np.array([(before.shape[1] - 1) / 2, (before.shape[0] - 1) / 2])
+    return np.degrees(np.arctan2(m[1, 0], m[0, 0])), np.hypot(m[0, 0], m[1, 0]), m[:, :2] @ centre + m[:, 2] - centre
+
+
+def test_a_moving_vehicle_moves_the_surface_and_the_water_the_other_way():
+    # sideways 0.3 m/s, closing on a seabed 2 m away at 0.2 m/s, turning 6 degrees a second; 12 frames
+    config = replace(PLAIN, background="seabed", background_level=120.0, vehicle_m_s=(0.3, 0.0, 0.2),
+                     yaw_deg_s=6.0, ground_m=2.0, sand=replace(SAND, count=40, speed=(0.0, 0.0)))
+    scene = RealisticScene(config, size=(640, 480), rng=np.random.default_rng(2))
+    first = cv2.cvtColor(scene.render(), cv2.COLOR_BGR2GRAY)
+    particles = scene.particles()
+    for _ in range(12):
+        scene.step()
+    seconds, distance = 12 / scene.fps, 2.0 - 0.2 * 12 / scene.fps
+    turn, scale, shift = _moved(first, cv2.cvtColor(scene.render(), cv2.COLOR_BGR2GRAY))
+    assert turn == pytest.approx(-6.0 * seconds, abs=0.05)  # the view turns the other way
+    assert scale == pytest.approx(2.0 / distance, abs=0.002)  # the surface grows as it comes closer
+    # the surface's point on the axis moves the other way, f v t / its distance then
+    assert shift[0] == pytest.approx(-scene.focal * 0.3 * seconds / distance, abs=1.0)
+    assert abs(shift[1]) < 1.0
+    # and brightens with the inverse square of its distance (the lamp at the camera)
+    start = RealisticScene(config, size=(640, 480), rng=np.random.default_rng(2))
+    assert scene._background.mean() / start._background.mean() == pytest.approx((2.0 / distance) ** 2, rel=0.05)
+    # particles at rest in the water: they turn the other way, come closer and pass sideways
+    after = scene.particles()
+    common, a, b = np.intersect1d(particles["ids"], after["ids"], return_indices=True)
+    assert len(common) > 10
+    assert np.allclose(after["Z"][b], particles["Z"][a] - 0.2 * seconds)
+    angle = -np.radians(6.0 / scene.fps)
+    x, y = particles["X"][a], particles["Y"][a]
+    for _ in range(12):  # the step's order: carried by the water, then turned
+        x = x - 0.3 / scene.fps
+        x, y = np.cos(angle) * x - np.sin(angle) * y, np.sin(angle) * x + np.cos(angle) * y
+    assert np.allclose(after["X"][b], x) and np.allclose(after["Y"][b], y)
+
+
+def test_a_moving_view_needs_a_still_background(tmp_path):
+    video = tmp_path / "bg.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10, (64, 48))
+    for i in range(3):
+        writer.write(np.full((48, 64, 3), 40 * i, np.uint8))
+    writer.release()
+    with pytest.raises(ValueError, match="a moving view needs a still background"):
+        RealisticScene(replace(PLAIN, background=str(video), yaw_deg_s=2.0), size=(64, 48),
+                       rng=np.random.default_rng(0))
+    with pytest.raises(ValueError, match="ground_m"):
+        SceneConfig(ground_m=0.0)

@@ -327,6 +327,8 @@ class BackgroundModel:
         self._turn_size: tuple[int, int] | None = None
         self._turn_wait = 0
         self._turn_last: np.ndarray | None = None
+        self._turn_moving = False  # a turn was made and the view has not been seen still since
+        self._turn_still = 0  # looks in a row that found it still
         self._typical_noise = 0.0  # the noise map's median
         # match_gain: the rows it reads, for frames of this shape; the pixels of them it compares
         # (flat indices) and frames since they were chosen; the last frame's rows (None: nothing
@@ -469,32 +471,36 @@ class BackgroundModel:
 
     def register(self, half: np.ndarray) -> bool:
         """Turn and scale the learnt background with the view: the vehicle yawing or rolling, closing
-        on or leaving the ground.  :meth:`follow` takes translation only (a row or column profile
-        says nothing about a turn), and on textured ground, with 20 particles, a turn of 0.1 degree
-        a frame gave 80 false detections a frame, 0.3 degree 490, 1 degree 800, a zoom of 0.2 /
-        0.5 / 1 % a frame 46 / 136 / 400; now 21 up to 0.1 degree and 0.5 %, 31 at 0.3 degree, 40
-        at 1 degree (30 degrees a second at 30 frames a second), 21-30 with a pan of 3 px a frame
-        on top; a zoom of 1 % a frame is still lost (167).
+        on or leaving the ground, or drifting across it a fraction of a pixel a frame.
+        :meth:`follow` takes whole-pixel translation only (a row or column profile says nothing
+        about a turn), and on textured ground, with 20 particles, a turn of 0.1 / 0.3 / 1 degree a
+        frame gave 80 / 490 / 800 false detections a frame, a zoom of 0.2 / 0.5 / 1 % a frame 46 /
+        136 / 400; now 21 / 29 / 48 and 21 / 22 / 21, 22 with a pan of 3 px a frame on top.  In
+        the simulator's survey (the mixed scene from a vehicle moving sideways at 0.25 m/s over the
+        seabed 2.5 m away and turning 4 degrees a second) 413 unmatched detections a frame -> 61.
 
         Lucas-Kanade optical flow (OpenCV) at half the working resolution from a grid of
         ``TURN_GRID`` points of the learnt background to this frame (the background's brightness
         matched to the frame's first: the flow takes brightness for constant, and an exposure ramp
         read as a turn), and the similarity transform (turn, scale, shift) that fits them (RANSAC:
-        particles on a point are outliers).  The background is moved when the transform moves some
-        corner of the frame by more than ``TURN_MIN`` working pixels, ``TURN_INLIERS`` points agree
-        with it, the background so moved lies closer to the frame (every 4th row, each pixel's
-        difference capped at 3 noise units so particles count as little as they can) than where
-        it is and than moved the other way -- resampled by a fraction of a pixel any background
-        comes out smoother and fits a noisy frame a little better, whichever way -- and the look
-        before found the view moving the same way (a still view's looks point anywhere).  Looks
-        every frame while the view moves, every ``TURN_EVERY`` frames while it holds still, not in
-        the first ``TURN_AFTER`` frames.  No move in any catalogued scene or in the twin (their
-        camera holds still).  Cost: a look 0.25-0.6 ms at 800x600 (the flow most of it), on
-        average 0.05 ms a frame (median) to 0.13 ms (mean) there, 0.1 / 0.15 ms at 1456x1088.
-        Returns True when it moved the background."""
+        particles on a point are outliers).  The first move is made when the transform moves
+        some corner of the frame by more than ``TURN_MIN`` working pixels, ``TURN_INLIERS`` points
+        agree with it, the background so moved lies closer to the frame by ``TURN_GAIN`` (:meth:`_misfit`)
+        than where it is and than moved the other way -- resampled by a fraction of a pixel any
+        background comes out smoother and fits a noisy frame a little better, whichever way -- and
+        the look before found the view moving the same way (a still view's looks point anywhere).
+        From then on the view is followed every frame, each move made however small while it fits
+        better than none and than its reverse, until ``TURN_STILL_LOOKS`` looks in a row find no
+        such move.  Looks every ``TURN_EVERY`` frames while the view holds still, none in the first
+        ``TURN_AFTER``.  No move in any catalogued scene or in the twin (their camera holds still).
+        Cost at 800x600: 0.11 ms a frame on average in a still view (0.05 median; a look, 0.25-0.6
+        ms, is mostly the flow), 0.15 at 1456x1088.  Not followed: the ground brightening as the
+        vehicle closes on it (the lamp's inverse square) while the view moves -- exposure following
+        (:meth:`match_gain`) compares two frames' same pixels, and 0.1 m/s towards ground 2.5 m away
+        left 250 false detections a frame.  Returns True when it moved the background."""
         if self._frames < self.TURN_AFTER:  # the first frames' background is mostly a guess
             return False
-        if self._turn_wait > 0:
+        if self._turn_wait > 0 and not self._turn_moving:
             self._turn_wait -= 1
             return False
         self._turn_wait = self.TURN_EVERY - 1
@@ -524,30 +530,51 @@ class BackgroundModel:
             return False
         corners = np.array([[0.0, 0.0], [w - 1.0, 0.0], [0.0, h - 1.0], [w - 1.0, h - 1.0]])
         shift = corners @ m[:, :2].T + m[:, 2] - corners  # where the move takes each corner
+        far = float(np.abs(shift).sum(axis=1).max())
+        if self._turn_moving:  # every move, however small, that fits better than none and than its reverse
+            if far < self.TURN_STILL or self._misfit(half, m, gain) >= min(
+                    self._misfit(half, None, gain), self._misfit(half, cv2.invertAffineTransform(m), gain)):
+                self._turn_still += 1
+                self._turn_moving = self._turn_still < self.TURN_STILL_LOOKS
+                return False
+            self._turn_still = 0
+            self._move_background(m)
+            return True
         last, self._turn_last = self._turn_last, None
-        if np.abs(shift).sum(axis=1).max() <= self.TURN_MIN:
+        if far <= self.TURN_MIN:
             return False
-        rows = slice(None, None, 4)
-        cap = max(3.0 * self._typical_noise, 2.0)
-
-        def misfit(move: np.ndarray | None) -> float:
-            """Summed capped difference between the frame and the background moved by ``move``, every
-            4th row (the background warped for those rows alone)."""
-            seen = self.background[rows]
-            if move is not None:
-                inverse = cv2.invertAffineTransform(move)
-                inverse[:, 1] *= 4  # the check's row y' is the frame's row 4 y'
-                seen = cv2.warpAffine(self.background, inverse, (w, seen.shape[0]),
-                                      flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
-            return cv2.sumElems(cv2.min(cv2.absdiff(half[rows], cv2.convertScaleAbs(seen, alpha=gain)), cap))[0]
-
-        if misfit(m) > (1 - self.TURN_GAIN) * min(misfit(None), misfit(cv2.invertAffineTransform(m))):
+        rivals = min(self._misfit(half, None, gain), self._misfit(half, cv2.invertAffineTransform(m), gain))
+        if self._misfit(half, m, gain) > (1 - self.TURN_GAIN) * rivals:
             return False
         self._turn_last = shift
         self._turn_wait = 0  # look again next frame
         if last is None or float((last * shift).sum()) < 0.25 * float((last * last).sum()):
             return False  # the first look that saw it, or one that saw the view move another way
-        self.background = cv2.warpAffine(self.background, m, (w, h), flags=cv2.INTER_LINEAR,
+        self._move_background(m)
+        self._turn_moving, self._turn_still = True, 0
+        return True
+
+    def _misfit(self, half: np.ndarray, move: np.ndarray | None, gain: float) -> float:
+        """How far the background moved by ``move`` (None: where it is) lies from the frame: the
+        summed difference over every 4th row (the background warped for those rows alone), each
+        pixel's capped at 3 noise units so particles count as little as they can."""
+        rows = slice(None, None, 4)
+        seen = self.background[rows]
+        if move is not None:
+            inverse = cv2.invertAffineTransform(move)
+            inverse[:, 1] *= 4  # the check's row y' is the frame's row 4 y'
+            seen = cv2.warpAffine(self.background, inverse, (half.shape[1], seen.shape[0]),
+                                  flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
+        cap = max(3.0 * self._typical_noise, 2.0)
+        return cv2.sumElems(cv2.min(cv2.absdiff(half[rows], cv2.convertScaleAbs(seen, alpha=gain)), cap))[0]
+
+    def _move_background(self, m: np.ndarray) -> None:
+        """Move the learnt background (and the learning's per-pixel state) by the affine map ``m``.
+        Bicubic: the view moving a fraction of a pixel every frame, bilinear resampling blurred the
+        background frame after frame (over the moving seabed 133 false detections a frame against
+        24, with the moves below)."""
+        h, w = self.background.shape
+        self.background = cv2.warpAffine(self.background, m, (w, h), flags=cv2.INTER_CUBIC,
                                          borderMode=cv2.BORDER_REPLICATE)
         self.base = cv2.convertScaleAbs(self.background)
         for name in ("_previous", "_persist"):
@@ -556,7 +583,6 @@ class BackgroundModel:
                 setattr(self, name, cv2.warpAffine(image, m, (w, h), flags=cv2.INTER_NEAREST,
                                                    borderMode=cv2.BORDER_REPLICATE))
         self._profiles = None
-        return True
 
     #: points of the grid (across, down) that :meth:`register` follows, at half the working resolution
     TURN_GRID = (8, 6)
@@ -564,13 +590,18 @@ class BackgroundModel:
     TURN_INLIERS = 12
     #: smallest move of a frame corner (working pixels, |dx| + |dy|) that turns the background
     TURN_MIN = 0.5
-    #: share by which the turned background must lie closer to the frame
-    TURN_GAIN = 0.003
-    #: frames learnt before the first look: a small move of the first frames' background (mostly a
-    #: guess from one frame) fitted it better every time (4 false turns at 1456x1088)
-    TURN_AFTER = 4
+    #: share by which the background must lie closer to the frame for the first move (true first moves
+    #: gained 1.5-12 %; a still view's false candidates 0.4-0.8 %)
+    TURN_GAIN = 0.01
+    #: frames learnt before the first look: a young background is noisy, and small moves of it fitted
+    #: the frame better (after 4 frames, false turns in a still 320x240 view and at 1456x1088)
+    TURN_AFTER = 8
     #: frames between looks while the view holds still
     TURN_EVERY = 6
+    #: once the view turns it is followed every frame until this many looks in a row find it moving
+    #: no corner by more than ``TURN_STILL`` working pixels
+    TURN_STILL = 0.15
+    TURN_STILL_LOOKS = 4
 
     def match_gain(self, half: np.ndarray) -> float:
         """Follow a change of the whole scene's brightness at once: the camera's exposure or gain

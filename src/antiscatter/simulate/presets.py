@@ -38,6 +38,11 @@ REALISTIC: dict[str, tuple[SceneConfig, tuple[int, int], str]] = {
                       sand=replace(SAND, count=100), background="seabed", background_level=60.0,
                       current=(0.02, 0.0)), (800, 600),
               "bubbles, snow and sand together over the seabed"),
+    "survey": (replace(_BASE, bubbles=replace(BUBBLES, count=60), snow=replace(SNOW, count=150),
+                       sand=replace(SAND, count=100), background="seabed", background_level=60.0,
+                       current=(0.02, 0.0), vehicle_m_s=(0.25, 0.0, 0.0), yaw_deg_s=4.0, ground_m=2.5), (800, 600),
+               "the mixed scene from a vehicle surveying the seabed 2.5 m away: moving sideways at "
+               "0.25 m/s and turning 4 degrees a second"),
     "textured": (replace(_BASE, bubbles=replace(BUBBLES, count=80), snow=replace(SNOW, count=120),
                          background="padding", background_level=170.0), (800, 600),
                  "particles in front of bright quilted tank padding (the report's failure case)"),

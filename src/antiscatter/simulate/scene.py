@@ -13,6 +13,10 @@ Physics, per frame:
 * motion blur: the sprite is smeared along its image velocity over ``exposure_s``;
 * the background (water, seabed, tank padding, or the user's image) is lit by
   the same lamp cone, tinted by the water colour;
+* the vehicle may move (``vehicle_m_s``, ``yaw_deg_s``): the water and its particles
+  move the other way in the camera's frame, and a background surface (seabed,
+  padding, an image) ``ground_m`` away pans, turns, grows and brightens as the
+  view moves over it and closes on it;
 * the sensor adds shot noise (variance ``shot_noise * signal``) and read noise
   (``read_noise`` grey levels), then clips at 255 (``saturate``) or rolls the
   highlights off softly; optional JPEG artefacts (``jpeg_quality``).
@@ -38,6 +42,13 @@ __all__ = ["KindConfig", "SceneConfig", "RealisticScene", "FOOTPRINT"]
 
 #: A pixel belongs to a particle's footprint where it adds at least this share of its peak.
 FOOTPRINT = 0.2
+
+#: a moving view's background surface is this many times the view's size (room to pan, turn and
+#: back away over it)
+GROUND_SCALE = 2
+
+#: a particle closer than this to the lens (m) is gone (the vehicle went through it)
+MIN_DEPTH_M = 0.1
 
 
 @dataclass(frozen=True)
@@ -99,6 +110,12 @@ class SceneConfig:
     saturate: clip at 255 (False: soft highlight roll-off, nothing flat-topped).
     jpeg_quality: 0 = off, else JPEG artefacts at this quality.
     hfov_deg: horizontal field of view; fps: frame rate.
+    vehicle_m_s: the vehicle's own velocity in the camera's frame, (x, y) across the view and z
+        towards the scene (m/s); yaw_deg_s: its turn about the camera's axis (degrees a second).
+        The particles and the water move the other way; a background surface (seabed, padding,
+        an image; not water, which is the light of the water itself, nor a video) lies
+        ``ground_m`` away, square to the view: it pans at f v / distance pixels a second, turns
+        the other way, and grows and brightens (inverse square) as the distance shrinks.
     """
 
     bubbles: KindConfig = field(default_factory=KindConfig)
@@ -122,6 +139,14 @@ class SceneConfig:
     jpeg_quality: int = 0
     hfov_deg: float = 63.0
     fps: float = 60.0
+    vehicle_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    yaw_deg_s: float = 0.0
+    ground_m: float = 2.5
+
+    @property
+    def moving(self) -> bool:
+        """True when the vehicle moves or turns."""
+        return any(v != 0 for v in self.vehicle_m_s) or self.yaw_deg_s != 0
 
     def __post_init__(self) -> None:
         if not (self.background in BACKGROUNDS or self.background):
@@ -130,7 +155,10 @@ class SceneConfig:
                   "focus_m": self.focus_m > 0, "defocus": self.defocus >= 0,
                   "exposure_s": self.exposure_s >= 0, "read_noise": self.read_noise >= 0,
                   "shot_noise": self.shot_noise >= 0, "jpeg_quality": 0 <= self.jpeg_quality <= 100,
-                  "hfov_deg": 0 < self.hfov_deg < 180, "fps": self.fps > 0, "lamp_width": self.lamp_width > 0}
+                  "hfov_deg": 0 < self.hfov_deg < 180, "fps": self.fps > 0, "lamp_width": self.lamp_width > 0,
+                  "ground_m": self.ground_m > 0,
+                  "vehicle_m_s": len(self.vehicle_m_s) == 3 and all(math.isfinite(v) for v in self.vehicle_m_s),
+                  "yaw_deg_s": math.isfinite(self.yaw_deg_s)}
         for name, ok in checks.items():
             if not ok:
                 raise ValueError(f"{name}: got {getattr(self, name)!r}, out of range")
@@ -163,7 +191,16 @@ class RealisticScene:
         self._pyramids = [[pyramid(t) for t in kind] for kind in templates]
         self._cone = self._make_cone()
         self._background_video = None
+        # a moving view: the background surface (unlit, larger than the view), the vehicle's turn
+        # (rad), its travel over the surface (m, in the surface's frame) and its distance (m)
+        self._ground: np.ndarray | None = None
+        self._yaw = 0.0
+        self._travel = np.zeros(2)
+        self._distance = config.ground_m
         self._background = self._make_background()
+        if config.moving and self._background_video is not None:
+            raise ValueError("vehicle_m_s, yaw_deg_s: a moving view needs a still background (water, seabed, "
+                             "padding or an image), not a video")
         self._blur_scale = config.defocus * width / 800.0
         self._state = {k: np.empty(0) for k in (
             "X", "Y", "Z", "R", "bvx", "bvy", "albedo", "phase", "angle", "spin", "growth", "wobble",
@@ -196,13 +233,15 @@ class RealisticScene:
         if c.background == "black" or c.background_level == 0:
             return None
         if c.background == "water":
-            base = gradient(self.size)[..., None] * 0.5
-        elif c.background == "seabed":
-            base = seabed(self.size, self._rng)[..., None]
+            return self._light_background(gradient(self.size)[..., None] * 0.5)  # the water's own light: no surface
+        # a moving view looks over a surface larger than itself
+        surface = (GROUND_SCALE * width, GROUND_SCALE * height) if c.moving else self.size
+        if c.background == "seabed":
+            base = seabed(surface, self._rng)[..., None]
         elif c.background == "padding":
-            base = padding(self.size, self._rng)[..., None]
+            base = padding(surface, self._rng)[..., None]
         else:
-            base = load_background(c.background, self.size)
+            base = load_background(c.background, surface)
             if base.ndim == 2:
                 base = base[..., None]
             cap = cv2.VideoCapture(c.background)
@@ -210,7 +249,30 @@ class RealisticScene:
                 self._background_video = cap
             else:
                 cap.release()
+        if c.moving:
+            self._ground = base
+            return self._view_of_ground()
         return self._light_background(base)
+
+    def ground_transform(self) -> np.ndarray:
+        """(2, 3) affine map from the background surface's pixels to the view's, now: at the start
+        the surface's centre lies on the optical axis at ``ground_m``, one surface pixel to one view
+        pixel; then p = principal + (ground_m / distance) R(-yaw) (g - centre - travel f / ground_m)."""
+        scale = self.config.ground_m / self._distance
+        cos, sin = math.cos(-self._yaw), math.sin(-self._yaw)
+        a = scale * np.array([[cos, -sin], [sin, cos]])
+        gh, gw = self._ground.shape[:2]
+        origin = np.array([(gw - 1) / 2, (gh - 1) / 2]) + self._travel * self.focal / self.config.ground_m
+        return np.column_stack([a, np.array(self.principal) - a @ origin])
+
+    def _view_of_ground(self) -> np.ndarray:
+        """The background surface as the view sees it now, lit (inverse square of its distance)."""
+        ground = self._ground
+        view = cv2.warpAffine(ground if ground.shape[2] > 1 else ground[..., 0], self.ground_transform(), self.size,
+                              flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+        if view.ndim == 2:
+            view = view[..., None]
+        return self._light_background(view) * np.float32((self.config.ground_m / self._distance) ** 2)
 
     def _light_background(self, base: np.ndarray) -> np.ndarray:
         c = self.config
@@ -231,8 +293,8 @@ class RealisticScene:
         u = rng.uniform(0, width, k)
         v = rng.uniform(0, height, k)
         if entering:
-            vx = bvx + self.config.current[0]
-            vy = bvy + self.config.current[1]
+            vx = bvx + self.config.current[0] - self.config.vehicle_m_s[0]
+            vy = bvy + self.config.current[1] - self.config.vehicle_m_s[1]
             norm = np.hypot(vx, vy)
             moving = norm > 1e-9
             dx = np.where(moving, vx / np.where(moving, norm, 1), 0.0)
@@ -264,8 +326,9 @@ class RealisticScene:
     def _velocity(self) -> tuple[np.ndarray, np.ndarray]:
         s = self._state
         w = 2 * np.pi * s["wobble_hz"] * self.time + s["phase"]
-        vx = s["bvx"] + self.config.current[0] + s["wobble"] * np.sin(w)
-        vy = s["bvy"] + self.config.current[1] + 0.3 * s["wobble"] * np.cos(w)
+        vehicle = self.config.vehicle_m_s
+        vx = s["bvx"] + self.config.current[0] - vehicle[0] + s["wobble"] * np.sin(w)
+        vy = s["bvy"] + self.config.current[1] - vehicle[1] + 0.3 * s["wobble"] * np.cos(w)
         return vx, vy
 
     def _project(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -281,13 +344,25 @@ class RealisticScene:
         vx, vy = self._velocity()
         s["X"] = s["X"] + vx * dt
         s["Y"] = s["Y"] + vy * dt
+        c = self.config
+        if c.moving:
+            turn = math.radians(c.yaw_deg_s) * dt  # the vehicle turns: the water turns the other way
+            cos, sin = math.cos(-turn), math.sin(-turn)
+            s["X"], s["Y"] = cos * s["X"] - sin * s["Y"], sin * s["X"] + cos * s["Y"]
+            s["Z"] = s["Z"] - c.vehicle_m_s[2] * dt
+            self._yaw += turn
+            cos, sin = math.cos(self._yaw), math.sin(self._yaw)  # the vehicle's heading over the surface
+            self._travel = self._travel + np.array([[cos, -sin], [sin, cos]]) @ np.array(c.vehicle_m_s[:2]) * dt
+            self._distance = max(self._distance - c.vehicle_m_s[2] * dt, 0.1 * c.ground_m)
+            if self._ground is not None:
+                self._background = self._view_of_ground()
         s["R"] = s["R"] * np.exp(s["growth"] * dt)
         s["angle"] = s["angle"] + s["spin"] * dt
         self.time += dt
         x, y, rp = self._project()
         width, height = self.size
         margin = rp * 1.2 + 4.0
-        gone = (x < -margin) | (x > width + margin) | (y < -margin) | (y > height + margin)
+        gone = (x < -margin) | (x > width + margin) | (y < -margin) | (y > height + margin) | (s["Z"] < MIN_DEPTH_M)
         if gone.any():
             kinds = s["kind"][gone]
             keep = ~gone
@@ -312,7 +387,8 @@ class RealisticScene:
             x, y = s["X"] + vx * ahead_s, s["Y"] + vy * ahead_s
         else:
             x, y = s["X"].copy(), s["Y"].copy()
-        return {"ids": s["ids"].copy(), "X": x, "Y": y, "Z": s["Z"].copy(), "R": s["R"].copy()}
+        z = s["Z"] - self.config.vehicle_m_s[2] * ahead_s  # (a turn within a frame: left out)
+        return {"ids": s["ids"].copy(), "X": x, "Y": y, "Z": z, "R": s["R"].copy()}
 
     def _lamp_gain(self) -> np.ndarray:
         """(N, 3) light each particle sends back under the full lamp on its axis: inverse square,
