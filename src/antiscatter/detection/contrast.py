@@ -475,9 +475,10 @@ class BackgroundModel:
         :meth:`follow` takes whole-pixel translation only (a row or column profile says nothing
         about a turn), and on textured ground, with 20 particles, a turn of 0.1 / 0.3 / 1 degree a
         frame gave 80 / 490 / 800 false detections a frame, a zoom of 0.2 / 0.5 / 1 % a frame 46 /
-        136 / 400; now 21 / 29 / 48 and 21 / 22 / 21, 22 with a pan of 3 px a frame on top.  In
+        136 / 400; now 21 / 24 / 21 and 21 / 23 / 21, 21 with a pan of 3 px a frame on top.  In
         the simulator's survey (the mixed scene from a vehicle moving sideways at 0.25 m/s over the
-        seabed 2.5 m away and turning 4 degrees a second) 413 unmatched detections a frame -> 61.
+        seabed 2.5 m away and turning 4 degrees a second) 413 unmatched detections a frame -> 56,
+        F1 0.49 -> 0.83.
 
         Lucas-Kanade optical flow (OpenCV) at half the working resolution from a grid of
         ``TURN_GRID`` points of the learnt background to this frame (the background's brightness
@@ -493,8 +494,8 @@ class BackgroundModel:
         better than none and than its reverse, until ``TURN_STILL_LOOKS`` looks in a row find no
         such move.  Looks every ``TURN_EVERY`` frames while the view holds still, none in the first
         ``TURN_AFTER``.  No move in any catalogued scene or in the twin (their camera holds still).
-        Cost at 800x600: 0.11 ms a frame on average in a still view (0.05 median; a look, 0.25-0.6
-        ms, is mostly the flow), 0.15 at 1456x1088.  Not followed: the ground brightening as the
+        Cost: 0.1-0.15 ms a frame on average in a still view at 800x600 (0.05 median; a look,
+        0.25-0.6 ms, is mostly the flow), 0.15-0.2 at 1456x1088; more while the view moves.  Not followed: the ground brightening as the
         vehicle closes on it (the lamp's inverse square) while the view moves -- exposure following
         (:meth:`match_gain`) compares two frames' same pixels, and 0.1 m/s towards ground 2.5 m away
         left 250 false detections a frame.  Returns True when it moved the background."""
@@ -538,7 +539,7 @@ class BackgroundModel:
                 self._turn_moving = self._turn_still < self.TURN_STILL_LOOKS
                 return False
             self._turn_still = 0
-            self._move_background(m)
+            self._move_background(m, half)
             return True
         last, self._turn_last = self._turn_last, None
         if far <= self.TURN_MIN:
@@ -550,7 +551,7 @@ class BackgroundModel:
         self._turn_wait = 0  # look again next frame
         if last is None or float((last * shift).sum()) < 0.25 * float((last * last).sum()):
             return False  # the first look that saw it, or one that saw the view move another way
-        self._move_background(m)
+        self._move_background(m, half)
         self._turn_moving, self._turn_still = True, 0
         return True
 
@@ -568,14 +569,18 @@ class BackgroundModel:
         cap = max(3.0 * self._typical_noise, 2.0)
         return cv2.sumElems(cv2.min(cv2.absdiff(half[rows], cv2.convertScaleAbs(seen, alpha=gain)), cap))[0]
 
-    def _move_background(self, m: np.ndarray) -> None:
-        """Move the learnt background (and the learning's per-pixel state) by the affine map ``m``.
-        Bicubic: the view moving a fraction of a pixel every frame, bilinear resampling blurred the
-        background frame after frame (over the moving seabed 133 false detections a frame against
-        24, with the moves below)."""
+    def _move_background(self, m: np.ndarray, half: np.ndarray) -> None:
+        """Move the learnt background (and the learning's per-pixel state) by the affine map ``m``;
+        what came into view is taken from this frame alone (as :meth:`_fill_entering` does for a
+        pan).  Bicubic: the view moving a fraction of a pixel every frame, bilinear resampling
+        blurred the background frame after frame (over the moving seabed 133 false detections a
+        frame against 24)."""
         h, w = self.background.shape
         self.background = cv2.warpAffine(self.background, m, (w, h), flags=cv2.INTER_CUBIC,
                                          borderMode=cv2.BORDER_REPLICATE)
+        inside = cv2.warpAffine(np.ones((h, w), np.uint8), m, (w, h), flags=cv2.INTER_NEAREST,
+                                borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        self._fill_entered(half, inside)
         self.base = cv2.convertScaleAbs(self.background)
         for name in ("_previous", "_persist"):
             image = getattr(self, name)
@@ -716,6 +721,32 @@ class BackgroundModel:
             strip = (slice(None), slice(a, b)) if axis else (slice(a, b), slice(None))
             self.background[strip] = part
             self.base[strip] = cv2.convertScaleAbs(part)
+
+    def _fill_entered(self, half: np.ndarray, inside: np.ndarray) -> None:
+        """Give the pixels that came into view (``inside`` 0) this frame's spatial background, taken
+        over a band along each edge they reach into (a move's entering ground lies along the edges:
+        a strip for a drift, thin wedges for a turn).  In the survey scene the leading edge's
+        texture was most of the false detections (x 600-800: 2 in 3)."""
+        h, w = half.shape
+        entered = inside == 0
+        if not entered.any():
+            return
+        reach = max(self.window, 2 * self.cell)  # what the spatial background looks at around a pixel
+        cols, rows = entered.any(axis=0), entered.any(axis=1)
+        # how deep the entering ground reaches in from each edge (left, right, top, bottom)
+        depth = [int(np.argmin(line[: n // 2])) if line[0] else 0
+                 for line, n in ((cols, w), (cols[::-1], w), (rows, h), (rows[::-1], h))]
+        for edge, d in enumerate(depth):
+            if d == 0:
+                continue
+            size = w if edge < 2 else h
+            a, b = (0, d) if edge % 2 == 0 else (size - d, size)
+            lo, hi = max(0, a - reach), min(size, b + reach)
+            band = (slice(None), slice(lo, hi)) if edge < 2 else (slice(lo, hi), slice(None))
+            fresh = spatial_background(half[band], cell=self.cell, window=self.window)
+            strip = (slice(None), slice(a, b)) if edge < 2 else (slice(a, b), slice(None))
+            part = fresh[:, a - lo:b - lo] if edge < 2 else fresh[a - lo:b - lo]
+            np.copyto(self.background[strip], part, where=entered[strip])
 
     def new_scene(self, half: np.ndarray) -> bool:
         """True when more than ``NEW_SCENE`` of the frame (every 4th row) differs from the background by
