@@ -97,8 +97,8 @@ class ContrastParams:
         last frame was bright (4 spikes a frame in 120k pixels: 1 in 1000 within 2 px).  Only once
         the background has been learnt (static texture persists too).  0 = off (default 2).
     follow: move the learnt background with the view when the camera pans, turns or zooms
-        (default true: a vehicle moves; pans ~80 us a frame at 800x600, turns and zooms 50 us
-        median, 130 mean -- false for a camera that holds still).
+        (default true: a vehicle moves; at 800x600 pans ~80 us a frame, turns and zooms 0.1-0.15 ms
+        on average in a still view, more while it moves -- false for a camera that holds still).
     texture: window of the median (full-resolution pixels, default 28; 0 = off) that the
         background taken from one frame -- the first, a still, the first after a cut -- follows
         where it is brighter than the coarse background: texture larger than half the window is
