@@ -362,7 +362,7 @@ class BackgroundModel:
                     self._gain_last, self._gain, self._gain_var = None, 1.0, 0.0
                     self._moved_ago = 0
                 else:
-                    self._moved_ago += 1
+                    self._moved_ago = 0 if self._turn_moving else self._moved_ago + 1
                 self.match_gain(half)
             if self.new_scene(half):
                 self.reset()
@@ -519,15 +519,16 @@ class BackgroundModel:
         background comes out smoother and fits a noisy frame a little better, whichever way -- and
         the look before found the view moving the same way (a still view's looks point anywhere).
         From then on the view is followed every frame, each move made however small while it fits
-        better than none and than its reverse, until ``TURN_STILL_LOOKS`` looks in a row find no
-        such move.  Looks every ``TURN_EVERY`` frames while the view holds still, none in the first
+        better than none and than its reverse, until ``TURN_STILL_LOOKS`` looks in a row find the
+        view still (no corner moving ``TURN_STILL``); a look whose move is turned down does not
+        count as still -- the view closing on the ground at 0.1 m/s grows 0.07 % a frame, each
+        frame's estimate of that is noisy with particles on the points, and counted as still, such
+        looks ended the following within a few frames (245 false detections a frame, 38 now).
+        Looks every ``TURN_EVERY`` frames while the view holds still, none in the first
         ``TURN_AFTER``.  No move in any catalogued scene or in the twin (their camera holds still).
         Cost: 0.1-0.15 ms a frame on average in a still view at 800x600 (0.05 median; a look,
-        0.25-0.6 ms, is mostly the flow), 0.15-0.2 at 1456x1088; more while the view moves.  Not
-        followed: the ground brightening as the vehicle closes on it (the lamp's inverse square)
-        while the view moves -- exposure following (:meth:`match_gain`) compares two frames' same
-        pixels, and 0.1 m/s towards ground 2.5 m away left 250 false detections a frame.  Returns
-        True when it moved the background."""
+        0.25-0.6 ms, is mostly the flow), 0.15-0.2 at 1456x1088; every frame while the view moves.
+        Returns True when it moved the background."""
         if self._frames < self.TURN_AFTER:  # the first frames' background is mostly a guess
             return False
         if self._turn_wait > 0 and not self._turn_moving:
@@ -562,12 +563,14 @@ class BackgroundModel:
         shift = corners @ m[:, :2].T + m[:, 2] - corners  # where the move takes each corner
         far = float(np.abs(shift).sum(axis=1).max())
         if self._turn_moving:  # every move, however small, that fits better than none and than its reverse
-            if far < self.TURN_STILL or self._misfit(half, m, gain) >= min(
-                    self._misfit(half, None, gain), self._misfit(half, cv2.invertAffineTransform(m), gain)):
+            if far < self.TURN_STILL:
                 self._turn_still += 1
                 self._turn_moving = self._turn_still < self.TURN_STILL_LOOKS
                 return False
             self._turn_still = 0
+            if self._misfit(half, m, gain) >= min(self._misfit(half, None, gain),
+                                                  self._misfit(half, cv2.invertAffineTransform(m), gain)):
+                return False  # a poor estimate this frame: the view still counts as moving
             self._move_background(m, half)
             return True
         last, self._turn_last = self._turn_last, None
