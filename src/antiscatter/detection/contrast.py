@@ -503,7 +503,7 @@ class BackgroundModel:
         :meth:`follow` takes whole-pixel translation only (a row or column profile says nothing
         about a turn), and on textured ground, with 20 particles, a turn of 0.1 / 0.3 / 1 degree a
         frame gave 80 / 490 / 800 false detections a frame, a zoom of 0.2 / 0.5 / 1 % a frame 46 /
-        136 / 400; now 21 / 24 / 21 and 21 / 23 / 21, 21 with a pan of 3 px a frame on top.  In
+        136 / 400; now 20 / 23 / 21 and 20 / 21 / 21, 21 with a pan of 3 px a frame on top.  In
         the simulator's survey (the mixed scene from a vehicle moving sideways at 0.25 m/s over the
         seabed 2.5 m away and turning 4 degrees a second) 413 unmatched detections a frame -> 56,
         F1 0.49 -> 0.83.
