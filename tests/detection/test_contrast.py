@@ -629,29 +629,43 @@ def test_the_background_turns_and_scales_with_the_view(turn, zoom, pan, register
         assert np.mean(counts[20:]) > 40
 
 
+def _false_alarms_from_a_moving_vehicle(vehicle_m_s, *, particles=True, frames=50):
+    """Per frame, the detections that match no particle in the simulator's survey scene with the
+    vehicle moving at ``vehicle_m_s`` and not turning (``particles`` False: bare seabed, where
+    every detection is a false alarm)."""
+    from dataclasses import replace
+
+    from antiscatter.assignment import gates, match
+    from antiscatter.simulate.presets import REALISTIC
+    from antiscatter.simulate.scene import RealisticScene
+
+    config, size, _ = REALISTIC["survey"]
+    config = replace(config, vehicle_m_s=vehicle_m_s, yaw_deg_s=0.0)
+    if not particles:
+        config = replace(config, bubbles=replace(config.bubbles, count=0), snow=replace(config.snow, count=0),
+                         sand=replace(config.sand, count=0))
+    scene = RealisticScene(config, size=size, rng=np.random.default_rng(1))
+    detector = make_detector("contrast")
+    false = []
+    for i in range(frames):
+        if i:
+            scene.step()
+        found = detector.detect(scene.render())
+        truth = scene.truth()
+        false.append(len(match(truth.centres, gates(truth.radii, min_gate=2.0), found.centres)[2]))
+    return false
+
+
 @pytest.mark.parametrize("slope", [True, False])
 def test_a_view_drifting_over_bare_seabed_shows_no_particles(slope, monkeypatch):
     # the vehicle moving sideways at 0.25 m/s over seabed 2.5 m away: the view drifts half a
     # working pixel a frame; a background off by a fraction of a pixel is wrong at every edge of the
     # ground's texture (no particles in the water here: everything found is a false alarm)
-    from dataclasses import replace
-
     from antiscatter.detection.contrast import BackgroundModel
-    from antiscatter.simulate.presets import REALISTIC
-    from antiscatter.simulate.scene import RealisticScene
 
     if not slope:
         monkeypatch.setattr(BackgroundModel, "MISREGISTRATION", 0.0)
-    config, size, _ = REALISTIC["survey"]
-    config = replace(config, vehicle_m_s=(0.25, 0.0, 0.0), yaw_deg_s=0.0, bubbles=replace(config.bubbles, count=0),
-                     snow=replace(config.snow, count=0), sand=replace(config.sand, count=0))
-    scene = RealisticScene(config, size=size, rng=np.random.default_rng(1))
-    detector = make_detector("contrast")
-    counts = []
-    for i in range(50):
-        if i:
-            scene.step()
-        counts.append(len(detector.detect(scene.render())))
+    counts = _false_alarms_from_a_moving_vehicle((0.25, 0.0, 0.0), particles=False)
     if slope:
         assert np.mean(counts[20:]) < 30, counts
     else:
@@ -663,23 +677,7 @@ def test_a_view_closing_on_the_seabed_stays_followed():
     # grows 0.07 % a frame and each frame's estimate of that is noisy (particles on the points);
     # the view must still count as moving when one estimate is turned down (it stopped following
     # after a few such frames: 245 detections a frame matched no particle, 38 now)
-    from dataclasses import replace
-
-    from antiscatter.assignment import gates, match
-    from antiscatter.simulate.presets import REALISTIC
-    from antiscatter.simulate.scene import RealisticScene
-
-    config, size, _ = REALISTIC["survey"]
-    scene = RealisticScene(replace(config, vehicle_m_s=(0.0, 0.0, 0.1), yaw_deg_s=0.0), size=size,
-                           rng=np.random.default_rng(1))
-    detector = make_detector("contrast")
-    false = []
-    for i in range(50):
-        if i:
-            scene.step()
-        found = detector.detect(scene.render())
-        truth = scene.truth()
-        false.append(len(match(truth.centres, gates(truth.radii, min_gate=2.0), found.centres)[2]))
+    false = _false_alarms_from_a_moving_vehicle((0.0, 0.0, 0.1))
     assert np.mean(false[20:]) < 80, false
 
 

@@ -454,7 +454,7 @@ class BackgroundModel:
         closer to the frame (:func:`_fits_better`), and by the shift measured, to a fraction of a
         pixel (linear interpolation: whole pixels left the texture up to half a pixel off, which
         ``point`` pooling shows as false detections); the ground that came into view takes its
-        background from the frame (:meth:`_fill_entering`).  The background's opened image and
+        background from the frame (:meth:`_fill_entered`).  The background's opened image and
         profiles are renewed every ``bands`` frames (one learning cycle) and after each move.
         Returns the move in whole working pixels (dx, dy)."""
         sub = (slice(None, None, 2), slice(None, None, 2))
@@ -488,8 +488,8 @@ class BackgroundModel:
         fine = np.float32([[1, 0, shifts[0]], [0, 1, shifts[1]]])
         self.background = cv2.warpAffine(self.background, fine, (w, h), flags=cv2.INTER_LINEAR,
                                          borderMode=cv2.BORDER_REPLICATE)
+        self._fill_entered(half, (max(dx, 0), max(-dx, 0), max(dy, 0), max(-dy, 0)))
         self.base = cv2.convertScaleAbs(self.background)
-        self._fill_entering(half, dx, dy)
         self._profiles = None
         if self._previous is not None:
             self._previous = move(self._previous)
@@ -568,16 +568,12 @@ class BackgroundModel:
                 self._turn_moving = self._turn_still < self.TURN_STILL_LOOKS
                 return False
             self._turn_still = 0
-            if self._misfit(half, m, gain) >= min(self._misfit(half, None, gain),
-                                                  self._misfit(half, cv2.invertAffineTransform(m), gain)):
+            if not self._fits_better(half, m, gain, 0.0):
                 return False  # a poor estimate this frame: the view still counts as moving
             self._move_background(m, half)
             return True
         last, self._turn_last = self._turn_last, None
-        if far <= self.TURN_MIN:
-            return False
-        rivals = min(self._misfit(half, None, gain), self._misfit(half, cv2.invertAffineTransform(m), gain))
-        if self._misfit(half, m, gain) > (1 - self.TURN_GAIN) * rivals:
+        if far <= self.TURN_MIN or not self._fits_better(half, m, gain, self.TURN_GAIN):
             return False
         self._turn_last = shift
         self._turn_wait = 0  # look again next frame
@@ -586,6 +582,13 @@ class BackgroundModel:
         self._move_background(m, half)
         self._turn_moving, self._turn_still = True, 0
         return True
+
+    def _fits_better(self, half: np.ndarray, m: np.ndarray, gain: float, margin: float) -> bool:
+        """True when the background moved by ``m`` lies closer to the frame, by ``margin`` (a share),
+        than both where it is and moved the reverse way (resampled by a fraction of a pixel any
+        background comes out smoother and fits a noisy frame a little better, whichever way)."""
+        rivals = min(self._misfit(half, None, gain), self._misfit(half, cv2.invertAffineTransform(m), gain))
+        return self._misfit(half, m, gain) < (1.0 - margin) * rivals
 
     def _misfit(self, half: np.ndarray, move: np.ndarray | None, gain: float) -> float:
         """How far the background moved by ``move`` (None: where it is) lies from the frame: the
@@ -603,16 +606,19 @@ class BackgroundModel:
 
     def _move_background(self, m: np.ndarray, half: np.ndarray) -> None:
         """Move the learnt background (and the learning's per-pixel state) by the affine map ``m``;
-        what came into view is taken from this frame alone (as :meth:`_fill_entering` does for a
-        pan).  Bicubic: the view moving a fraction of a pixel every frame, bilinear resampling
-        blurred the background frame after frame (over the moving seabed 133 false detections a
-        frame against 24)."""
+        what came into view is taken from this frame alone (:meth:`_fill_entered`, each edge's band
+        as deep as the columns or rows, counted from that edge, that hold any of it).  Bicubic: the
+        view moving a fraction of a pixel every frame, bilinear resampling blurred the background
+        frame after frame (over the moving seabed 133 false detections a frame against 24)."""
         h, w = self.background.shape
         self.background = cv2.warpAffine(self.background, m, (w, h), flags=cv2.INTER_CUBIC,
                                          borderMode=cv2.BORDER_REPLICATE)
-        inside = cv2.warpAffine(np.ones((h, w), np.uint8), m, (w, h), flags=cv2.INTER_NEAREST,
-                                borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        self._fill_entered(half, inside)
+        entered = cv2.warpAffine(np.ones((h, w), np.uint8), m, (w, h), flags=cv2.INTER_NEAREST,
+                                 borderMode=cv2.BORDER_CONSTANT, borderValue=0) == 0
+        cols, rows = entered.any(axis=0), entered.any(axis=1)
+        depths = [int(np.argmin(line[: n // 2])) if line[0] else 0
+                  for line, n in ((cols, w), (cols[::-1], w), (rows, h), (rows[::-1], h))]
+        self._fill_entered(half, tuple(depths), entered)
         self.base = cv2.convertScaleAbs(self.background)
         for name in ("_previous", "_persist"):
             image = getattr(self, name)
@@ -735,50 +741,33 @@ class BackgroundModel:
     #: times the two frames' noise are not the same view: not compared
     GAIN_SPREAD = 2.0
 
-    def _fill_entering(self, half: np.ndarray, dx: int, dy: int) -> None:
-        """The ground that came into view with a move (dx, dy) has nothing learnt: its background is
-        taken from this frame alone (:func:`spatial_background`, texture and all), as at the start.
-        Before, the edge was repeated across it and its texture showed as particles at the leading
-        edge (panning over fractal seabed 28-128 detections a frame for 20 particles, 21 now)."""
+    def _fill_entered(self, half: np.ndarray, depths: tuple[int, int, int, int],
+                      entered: np.ndarray | None = None) -> None:
+        """The ground that came into view with a move has nothing learnt: its background is taken
+        from this frame alone (:func:`spatial_background`, texture and all), as at the start, over a
+        band along each edge -- ``depths`` (left, right, top, bottom) pixels deep, and the area the
+        spatial background looks at around it -- where ``entered`` (bool; None: the whole band).
+        A pan's new ground is a strip, a turn's thin wedges along every edge.  Before, the edge was
+        repeated across it and its texture showed as particles at the leading edge (panning over
+        fractal seabed 28-128 detections a frame for 20 particles, 21 now; a turn of 1 degree a
+        frame 48 -> 21)."""
         h, w = half.shape
         reach = max(self.window, 2 * self.cell)  # what the spatial background looks at around a pixel
-        for shift, size, axis in ((dx, w, 1), (dy, h, 0)):
-            if not shift:
-                continue
-            # the strip [a, b) that came into view along this axis, and the area [lo, hi) around it
-            a, b = (0, shift) if shift > 0 else (size + shift, size)
-            lo, hi = max(0, a - reach), min(size, b + reach)
-            fresh = spatial_background(half[:, lo:hi] if axis else half[lo:hi], cell=self.cell, window=self.window)
-            part = fresh[:, a - lo:b - lo] if axis else fresh[a - lo:b - lo]
-            strip = (slice(None), slice(a, b)) if axis else (slice(a, b), slice(None))
-            self.background[strip] = part
-            self.base[strip] = cv2.convertScaleAbs(part)
-
-    def _fill_entered(self, half: np.ndarray, inside: np.ndarray) -> None:
-        """Give the pixels that came into view (``inside`` 0) this frame's spatial background, taken
-        over a band along each edge they reach into (a move's entering ground lies along the edges:
-        a strip for a drift, thin wedges for a turn).  In the survey scene the leading edge's
-        texture was most of the false detections (x 600-800: 2 in 3)."""
-        h, w = half.shape
-        entered = inside == 0
-        if not entered.any():
-            return
-        reach = max(self.window, 2 * self.cell)  # what the spatial background looks at around a pixel
-        cols, rows = entered.any(axis=0), entered.any(axis=1)
-        # how deep the entering ground reaches in from each edge (left, right, top, bottom)
-        depth = [int(np.argmin(line[: n // 2])) if line[0] else 0
-                 for line, n in ((cols, w), (cols[::-1], w), (rows, h), (rows[::-1], h))]
-        for edge, d in enumerate(depth):
-            if d == 0:
+        for edge, d in enumerate(depths):
+            if d <= 0:
                 continue
             size = w if edge < 2 else h
+            # the band [a, b) along this edge, and the area [lo, hi) around it
             a, b = (0, d) if edge % 2 == 0 else (size - d, size)
             lo, hi = max(0, a - reach), min(size, b + reach)
-            band = (slice(None), slice(lo, hi)) if edge < 2 else (slice(lo, hi), slice(None))
-            fresh = spatial_background(half[band], cell=self.cell, window=self.window)
-            strip = (slice(None), slice(a, b)) if edge < 2 else (slice(a, b), slice(None))
+            fresh = spatial_background(half[:, lo:hi] if edge < 2 else half[lo:hi], cell=self.cell,
+                                       window=self.window)
             part = fresh[:, a - lo:b - lo] if edge < 2 else fresh[a - lo:b - lo]
-            np.copyto(self.background[strip], part, where=entered[strip])
+            strip = (slice(None), slice(a, b)) if edge < 2 else (slice(a, b), slice(None))
+            if entered is None:
+                self.background[strip] = part
+            else:
+                np.copyto(self.background[strip], part, where=entered[strip])
 
     def new_scene(self, half: np.ndarray) -> bool:
         """True when more than ``NEW_SCENE`` of the frame (every 4th row) differs from the background by
