@@ -43,6 +43,9 @@ __all__ = ["KindConfig", "SceneConfig", "RealisticScene", "FOOTPRINT"]
 #: A pixel belongs to a particle's footprint where it adds at least this share of its peak.
 FOOTPRINT = 0.2
 
+#: at most this many samples a pixel across for particles smaller than a pixel (see _sprite)
+MAX_SUPERSAMPLE = 64
+
 #: a moving view's background surface is this many times the view's size (room to pan, turn and
 #: back away over it)
 GROUND_SCALE = 2
@@ -498,14 +501,26 @@ class RealisticScene:
         streak = math.hypot(sx, sy)
         half = int(math.ceil(rp * 1.1 + 3 * sigma + streak / 2 + 2))
         x0, y0 = int(math.floor(x)) - half, int(math.floor(y)) - half
-        side = 2 * half + 1
         scale = rp / src_radius
-        cos_a, sin_a = math.cos(angle) * scale, math.sin(angle) * scale
-        tx, ty = x - x0, y - y0
+        # a particle smaller than a pixel is drawn ``fine`` times finer, each pixel the mean of its
+        # fine x fine samples (the light that falls on it) -- one sample at the pixel's centre missed
+        # the grain between centres (gone from the frame) or caught its peak (up to 16 times its
+        # light), by where it fell.  Only its own few pixels (the core) are drawn finely; blur and
+        # streak spread it over the patch.
+        fine = 1 if scale >= 0.5 else min(MAX_SUPERSAMPLE, math.ceil(0.5 / scale))
+        core = half if fine == 1 else min(half, int(math.ceil(rp * 1.1 + 1)))
+        pad = half - core
+        cos_a, sin_a = math.cos(angle) * scale * fine, math.sin(angle) * scale * fine
+        tx, ty = (x - x0 - pad + 0.5) * fine - 0.5, (y - y0 - pad + 0.5) * fine - 0.5
         m = np.array([[cos_a, -sin_a, tx - (cos_a * src_centre - sin_a * src_centre)],
                       [sin_a, cos_a, ty - (sin_a * src_centre + cos_a * src_centre)]], np.float64)
+        side = (2 * core + 1) * fine
         patch = cv2.warpAffine(src, m, (side, side), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-        if scale < 0.5:  # tiny particle: keep its light, not just its sampled peak
+        if fine > 1:
+            patch = cv2.resize(patch, (2 * core + 1, 2 * core + 1), interpolation=cv2.INTER_AREA)
+        if pad:
+            patch = cv2.copyMakeBorder(patch, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0)
+        if scale < 0.5:  # tiny particle: the optics spread its light over a pixel or so
             patch = cv2.GaussianBlur(patch, (0, 0), 0.5)
         if sigma > 0.3:
             patch = cv2.GaussianBlur(patch, (0, 0), sigma)
