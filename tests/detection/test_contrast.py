@@ -629,10 +629,10 @@ def test_the_background_turns_and_scales_with_the_view(turn, zoom, pan, register
         assert np.mean(counts[20:]) > 40
 
 
-def _false_alarms_from_a_moving_vehicle(vehicle_m_s, *, particles=True, frames=50):
+def _false_alarms_from_a_moving_vehicle(vehicle_m_s, *, particles=True, frames=50, yaw_deg_s=0.0):
     """Per frame, the detections that match no particle in the simulator's survey scene with the
-    vehicle moving at ``vehicle_m_s`` and not turning (``particles`` False: bare seabed, where
-    every detection is a false alarm)."""
+    vehicle moving at ``vehicle_m_s`` and turning ``yaw_deg_s`` (``particles`` False: bare seabed,
+    where every detection is a false alarm)."""
     from dataclasses import replace
 
     from antiscatter.assignment import gates, match
@@ -640,7 +640,7 @@ def _false_alarms_from_a_moving_vehicle(vehicle_m_s, *, particles=True, frames=5
     from antiscatter.simulate.scene import RealisticScene
 
     config, size, _ = REALISTIC["survey"]
-    config = replace(config, vehicle_m_s=vehicle_m_s, yaw_deg_s=0.0)
+    config = replace(config, vehicle_m_s=vehicle_m_s, yaw_deg_s=yaw_deg_s)
     if not particles:
         config = replace(config, bubbles=replace(config.bubbles, count=0), snow=replace(config.snow, count=0),
                          sand=replace(config.sand, count=0))
@@ -679,6 +679,14 @@ def test_a_view_closing_on_the_seabed_stays_followed():
     # after a few such frames: 245 detections a frame matched no particle, 38 now)
     false = _false_alarms_from_a_moving_vehicle((0.0, 0.0, 0.1))
     assert np.mean(false[20:]) < 80, false
+
+
+def test_a_view_that_turns_from_the_first_frame_is_followed_within_a_few():
+    # the survey: sideways at 0.25 m/s and turning 4 degrees a second from the first frame; looks
+    # held back for 8 frames let the texture show through more each frame (31 -> 276 false alarms
+    # a frame over frames 1-8); now the turn is followed from frame 3
+    false = _false_alarms_from_a_moving_vehicle((0.25, 0.0, 0.0), yaw_deg_s=4.0, frames=10)
+    assert max(false[3:]) < 60, false
 
 
 def test_a_still_view_is_never_turned(monkeypatch):
