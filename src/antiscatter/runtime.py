@@ -289,7 +289,7 @@ class _Pipeline:
         self.detector = detector
         self.tracker = tracker
         if tracker is not None:
-            tracker.set_frame_width(source.size[0])  # its motion settings are for 800 px wide frames
+            tracker.set_frame_size(source.size)  # motion settings for 800 px wide frames; the view's edges
         self.outputs = outputs
         self.metrics_writer = metrics_writer
         self.detections_writer = detections_writer

@@ -247,7 +247,7 @@ def evaluate_tracking(frames_iter, detector: Detector, m: Matching, *, fps: floa
     for index, image, truth in frames_iter:
         found = detector.detect(image)
         if tracker.timestamp is None:  # the first frame: its motion settings are for 800 px wide ones
-            tracker.set_frame_width(image.shape[1])
+            tracker.set_frame_size((image.shape[1], image.shape[0]))
         tracks = tracker.update(found, index * dt)
         score.add(truth.ids, truth.centres, truth.radii, truth.counted, found.centres, tracks.detection_ids)
         alone.add(truth.ids, truth.centres, truth.radii, truth.counted & isolated(truth.centres, truth.radii),

@@ -31,7 +31,7 @@ from ..detections import Detections
 
 __all__ = ["Tracker", "Tracks", "Prediction"]
 
-#: frame width (px) the motion settings' defaults are for (see Tracker.set_frame_width)
+#: frame width (px) the motion settings' defaults are for (see Tracker.set_frame_size)
 REFERENCE_WIDTH = 800
 
 #: frames a lost confirmed track keeps its identity by default (see Tracker's keep_misses)
@@ -104,9 +104,15 @@ class Tracker:
         changed removal by +-0.01 and cost 0.01-0.03 of the scene light, so it is off for now.
     gate_sigma : gate in standard deviations of the predicted position (default 4).
     min_gate, max_gate : gate limits in pixels (defaults 3 and 80).
-    frame_width : width of the frames in px (None: 800): ``accel_noise``, ``initial_speed`` and
-        ``max_gate`` are for 800 px wide frames and grow in proportion above that
-        (:meth:`set_frame_width`).  At 1456x1088 (fullres) isolated IDF1 0.910 -> 0.940.
+    frame_size : (width, height) of the frames in px (None: 800 wide, no edges): ``accel_noise``,
+        ``initial_speed`` and ``max_gate`` are for 800 px wide frames and grow in proportion above
+        that (:meth:`set_frame_size`; at 1456x1088 (fullres) isolated IDF1 0.910 -> 0.940), and a
+        track whose predicted centre has left the view by more than its radius is deleted: its
+        particle has gone out of sight.  Kept, such a track (its particle's identity, 12 frames)
+        took the next particle to come in near where it was heading: isolated IDF1 survey (the
+        vehicle moving sideways: particles stream out of one side and in at the other) 0.897 ->
+        0.924, dense 0.767 -> 0.778, mixed, textured, fullres, sand +0.001..+0.004, the rest the
+        same.
     accel_noise : process noise, px/s^2 of white acceleration (default 3000).
     radius_noise : radius random walk, px/sqrt(s) (default 4).
     position_noise : detected centre noise, px (default 0.7).
@@ -128,7 +134,7 @@ class Tracker:
                  min_gate: float = 3.0, max_gate: float = 80.0, accel_noise: float = 3000.0,
                  radius_noise: float = 4.0, position_noise: float = 0.7,
                  radius_measurement_noise: float = 1.0, initial_speed: float = 400.0,
-                 revive_frames: int = 0, frame_width: int | None = None) -> None:
+                 revive_frames: int = 0, frame_size: tuple[int, int] | None = None) -> None:
         keep_misses = max(KEEP_MISSES, max_misses) if keep_misses is None else keep_misses
         checks = {"confirm_hits": confirm_hits >= 1, "max_misses": max_misses >= 0, "revive_frames": revive_frames >= 0,
                   "keep_misses": keep_misses >= max_misses, "flow_neighbours": flow_neighbours >= 0,
@@ -149,7 +155,8 @@ class Tracker:
         self.gate_sigma = gate_sigma
         self.min_gate = min_gate
         self._motion = (accel_noise, initial_speed, max_gate)  # as given: for 800 px wide frames
-        self.set_frame_width(frame_width)
+        self.view: tuple[int, int] | None = None
+        self.set_frame_size(frame_size)
         self.radius_noise = radius_noise
         self.measurement = np.diag([position_noise ** 2, position_noise ** 2, radius_measurement_noise ** 2])
         self.x = np.empty((0, 5))
@@ -169,11 +176,14 @@ class Tracker:
         # the updates each has left
         self._dead: dict[str, np.ndarray] = {}
 
-    def set_frame_width(self, width: int | None) -> None:
-        """Scale the motion settings -- ``accel_noise``, ``initial_speed``, ``max_gate``, given for
-        frames 800 px wide -- to frames ``width`` px wide (wider frames see the same motion as
-        more pixels; narrower ones keep them as given, as the detector's cell and radius do).
-        None: as given.  The runtime and ``evaluate`` call it with the first frame's width."""
+    def set_frame_size(self, size: tuple[int, int] | None) -> None:
+        """Frames of ``size`` (width, height) px: scale the motion settings -- ``accel_noise``,
+        ``initial_speed``, ``max_gate``, given for frames 800 px wide -- to the width (wider frames
+        see the same motion as more pixels; narrower ones keep them as given, as the detector's
+        cell and radius do), and delete tracks that leave the view.  None: as given, no edges.
+        The runtime, the twin and ``evaluate`` call it with the first frame's size."""
+        self.view = (int(size[0]), int(size[1])) if size and min(size) > 0 else None  # (0, 0): not known
+        width = self.view[0] if self.view else None
         scale = max(1.0, width / REFERENCE_WIDTH) if width else 1.0
         accel_noise, initial_speed, max_gate = self._motion
         self.accel_noise, self.initial_speed, self.max_gate = (accel_noise * scale, initial_speed * scale,
@@ -236,6 +246,7 @@ class Tracker:
         if dt < 0:
             raise ValueError(f"timestamp: got {timestamp}, earlier than the last update {self.timestamp}")
         self._predict(dt)
+        self._drop_departed()
         if self._dead and dt > 0:
             dead = self._dead
             dead["x"], dead["pp"], dead["pv"], dead["vv"], dead["rr"] = self._advance(
@@ -293,6 +304,18 @@ class Tracker:
             detection_ids[k] = new_ids
         return Tracks(self.ids.copy(), self.x[:, :2].copy(), self.x[:, 2:4].copy(), self.x[:, 4].copy(),
                       self.hits >= self.confirm_hits, self.misses.copy(), timestamp, detection_ids)
+
+    def _drop_departed(self) -> None:
+        """Delete the tracks whose predicted centre lies outside the view by more than their
+        radius: their particles have left it."""
+        if self.view is None or len(self.x) == 0:
+            return
+        width, height = self.view
+        x, y, r = self.x[:, 0], self.x[:, 1], np.maximum(self.x[:, 4], 0.0)
+        inside = (x >= -r) & (x <= width - 1 + r) & (y >= -r) & (y <= height - 1 + r)
+        if not inside.all():
+            for name in self._FIELDS:
+                setattr(self, name, getattr(self, name)[inside])
 
     def _associate(self, detections: Detections, is_lost: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(matches (K, 2) of (track, detection), unmatched tracks, unmatched detections).
