@@ -666,8 +666,8 @@ def test_a_view_drifting_over_bare_seabed_shows_no_particles(slope, monkeypatch)
     if not slope:
         monkeypatch.setattr(BackgroundModel, "MISREGISTRATION", 0.0)
     counts = _false_alarms_from_a_moving_vehicle((0.25, 0.0, 0.0), particles=False)
-    if slope:
-        assert np.mean(counts[20:]) < 30, counts
+    if slope:  # 9 a frame; 16 when the ground coming into view took the frame's spatial background
+        assert np.mean(counts[20:]) < 12, counts
     else:
         assert np.mean(counts[20:]) > 60
 
