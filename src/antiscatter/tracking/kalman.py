@@ -113,7 +113,17 @@ class Tracker:
         vehicle moving sideways: particles stream out of one side and in at the other) 0.897 ->
         0.924, dense 0.767 -> 0.778, mixed, textured, fullres, sand +0.001..+0.004, the rest the
         same.
-    accel_noise : process noise, px/s^2 of white acceleration (default 3000).
+    accel_noise : process noise, px/s^2 of white acceleration (default 1500: the simulator's
+        particles change speed by up to 500-2400 px/s^2 -- a bubble's 3 Hz wobble 0.3-1.5 m away,
+        the seed tank's discs turning to new headings).  3000 before: isolated IDF1 seed 0.793
+        -> 0.820, dense 0.778 -> 0.810, survey 0.932 -> 0.939, bubbles, snow, sand, mixed,
+        textured, fullres +0.001..+0.004 (1000: IDF1 within 0.01 of 1500, 400 lost the wobbling
+        bubbles, 0.976 -> 0.900).  The smaller spread draws tighter holes: at 12 cm with probing
+        removal fell 0.016 (0.774 -> 0.761 over 6 scenes) and scene light rose 0.009; with holes
+        grown by 1.3 standard deviations instead of 1 (:meth:`holes`; 1.5 removed less again) the
+        twin (pulse, prediction, 5 ms, 60 frames, 18 scenes) co-located removed 0.871 -> 0.878
+        keeping 0.956 -> 0.958, at 12 cm 0.751 -> 0.749 keeping 0.887 -> 0.893 (from frame 20:
+        0.810 -> 0.817, 0.920 -> 0.929).
     radius_noise : radius random walk, px/sqrt(s) (default 4).
     position_noise : detected centre noise, px (default 0.7).
     radius_measurement_noise : detected radius noise, px (default 1).
@@ -131,7 +141,7 @@ class Tracker:
     def __init__(self, *, confirm_hits: int = 3, max_misses: int = 5, keep_misses: int | None = None,
                  tentative_misses: int = 3, flow_neighbours: int = 5,
                  max_dark: int = 0, gate_sigma: float = 4.0,
-                 min_gate: float = 3.0, max_gate: float = 80.0, accel_noise: float = 3000.0,
+                 min_gate: float = 3.0, max_gate: float = 80.0, accel_noise: float = 1500.0,
                  radius_noise: float = 4.0, position_noise: float = 0.7,
                  radius_measurement_noise: float = 1.0, initial_speed: float = 400.0,
                  revive_frames: int = 0, frame_size: tuple[int, int] | None = None) -> None:
@@ -401,7 +411,7 @@ class Tracker:
         return unmatched
 
     # ------------------------------------------------------------- holes
-    def holes(self, at: float, *, uncertainty_sigma: float = 1.0, max_growth: float = 2.0) -> Detections:
+    def holes(self, at: float, *, uncertainty_sigma: float = 1.3, max_growth: float = 2.0) -> Detections:
         """Where every particle will be at time ``at`` (seconds): the holes to draw.
 
         Tracks seen at least twice (``MOVING_HITS``: they have a velocity), confirmed
@@ -409,9 +419,10 @@ class Tracker:
         grows by ``uncertainty_sigma`` standard deviations of the predicted
         position, at most ``max_growth`` pixels.  New particles, seen once, get a
         hole where they were seen.  The
-        defaults (1 sd, at most 2 px) are the twin's best balance of backscatter
-        removed and scene light kept; 2 sd up to 6 px removed 0.01 more and kept
-        0.02-0.08 less (co-located, 5-20 ms).
+        defaults (1.3 sd, at most 2 px) are the twin's best balance of backscatter
+        removed and scene light kept (see ``accel_noise``); 2 sd up to 6 px removed
+        0.01 more and kept 0.02-0.08 less (co-located, 5-20 ms, with 1 sd as the
+        base and the process noise of 3000 then).
         """
         return self.snapshot().holes(at, uncertainty_sigma=uncertainty_sigma, max_growth=max_growth)
 
@@ -442,7 +453,7 @@ class Prediction:
     timestamp: float | None
     accel_noise: float
 
-    def holes(self, at: float, *, uncertainty_sigma: float = 1.0, max_growth: float = 2.0) -> Detections:
+    def holes(self, at: float, *, uncertainty_sigma: float = 1.3, max_growth: float = 2.0) -> Detections:
         """Where every particle will be at time ``at`` (seconds); see :meth:`Tracker.holes`."""
         n = len(self.x)
         if n == 0 or self.timestamp is None:
