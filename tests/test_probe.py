@@ -156,6 +156,25 @@ def test_brightness_learnt_from_settled_depths_narrows_a_new_particles_search():
         _settle(p, 50, centre, 1 / z, lit)
 
 
+def test_a_few_settled_depths_fix_the_inverse_squares_level():
+    # before FIT_SLOPE tracks the slope is the lamp's inverse square and only its level is learnt:
+    # from MIN_PRIOR settled tracks on, a new particle's search is narrowed around it
+    rng = np.random.default_rng(5)
+    p = probe()
+    centre = np.array([[400.0, 300.0]])
+    for tid in range(1, DepthProbe.MIN_PRIOR + 1):
+        assert p.prior(30.0) == (p.w_far, p.w_near)  # too few yet
+        z = rng.uniform(0.4, 2.5)
+        _settle(p, tid, centre, 1 / z, 40.0 * rng.uniform(0.6, 1.0) / z ** 2)
+        p.forget(np.array([]))
+    assert p.prior_size() == DepthProbe.MIN_PRIOR < DepthProbe.FIT_SLOPE
+    for z in (0.4, 1.0, 2.5):  # across the range, also beyond the depths it learnt from
+        lo, hi = p.prior(40.0 * 0.8 / z ** 2)
+        assert lo < 1 / z < hi and (hi - lo) < 0.5 * (p.w_near - p.w_far)
+        if p.w_far < lo and hi < p.w_near:  # not cut by the working range: FEW_BAND either side at least
+            assert hi / lo >= np.exp(2 * DepthProbe.FEW_BAND) - 1e-9
+
+
 def test_a_settled_hole_that_misses_once_between_hits_stays():
     p = probe()
     centre = np.array([[400.0, 300.0]])

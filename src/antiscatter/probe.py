@@ -69,8 +69,9 @@ class DepthProbe:
     prior_samples: a new particle's search starts from the inverse depths that particles of its
         brightness were found at.  The lamp's light falls off with the square of the distance,
         so brightness says much about depth; how much -- albedos, sizes, defocus, the lamp, the
-        camera's gain, the water -- is learnt from the probe's own results: a line fitted to
-        (log brightness, log inverse depth) of the last ``prior_samples`` tracks whose settled
+        camera's gain, the water -- is learnt from the probe's own results: a line (of the
+        inverse square's slope, ``SLOPE``, until ``FIT_SLOPE`` tracks have settled, then fitted)
+        through (log brightness, log inverse depth) of the last ``prior_samples`` tracks whose settled
         hole was seen to dim them ``HELD`` exposures in a row (82 % of those lie within 10 % of
         the true depth in the twin, against 67 % of all settled ones), widened to the central
         ``prior_coverage`` of the residuals plus a quarter each side.  The whole range before
@@ -98,10 +99,30 @@ class DepthProbe:
     #: the first second of a dive are the costliest (whole-range segments: at 12 cm the twin's
     #: first 15 frames keep 0.56-0.86 of the scene light, later ones 0.92-0.93), so the prior
     #: starts early; the fit is renewed with every settled track.  Twin, 12 cm, pulse,
-    #: prediction, scene seeds 1-12, 60 frames: 30 / 20 / 12 / 8 removed 0.753 / 0.761 / 0.764 /
-    #: 0.752 keeping 0.878 / 0.880 / 0.883 / 0.885; 30 / 12 over 120 frames 0.783 / 0.789 keeping
-    #: 0.898 / 0.901, over 240 0.796 / 0.799 keeping 0.908 / 0.910.
-    MIN_PRIOR = 12
+    #: prediction, scene seeds 1-12, 60 frames, slope fitted from the start: 30 / 20 / 12 / 8
+    #: removed 0.753 / 0.761 / 0.764 / 0.752 keeping 0.878 / 0.880 / 0.883 / 0.885; 30 / 12 over
+    #: 120 frames 0.783 / 0.789 keeping 0.898 / 0.901, over 240 0.796 / 0.799 keeping 0.908 /
+    #: 0.910.  With the slope given (``SLOPE``) only the level is learnt, and 4 settled tracks
+    #: fix it well enough (below).
+    MIN_PRIOR = 4
+    #: slope of log inverse depth against log brightness until ``FIT_SLOPE`` tracks have settled:
+    #: the lamp's light falls with the square of the distance, so inverse depth goes as the square
+    #: root of the brightness.  (Fitted, it came out 0.19-0.50 from 12 settled tracks and
+    #: 0.44-0.45 from 40 in the twin's first three scenes: defocus and the water's attenuation
+    #: make far particles a little dimmer still.)  Fitting both from the 12th track on, 18 scenes
+    #: of 60 frames at 12 cm (pulse, prediction) removed 0.749 keeping 0.893 (from frame 20
+    #: 0.817 / 0.929); the slope given, from the 4th, 0.752 / 0.898 (0.828 / 0.932); over 12
+    #: scenes of 120 frames 0.796 / 0.911 -> 0.797 / 0.913 (the slope given throughout: 0.756 /
+    #: 0.899 and 0.795 / 0.915, but particles too small to resolve fade faster than the inverse
+    #: square, and the data's own slope is kept for them once there is enough of it).
+    SLOPE = 0.5
+    FIT_SLOPE = 40
+    #: while the slope is given, the prior's interval reaches at least this far either side of the
+    #: line (log inverse depth: a factor 1.35 in depth) -- the spread of a few settled tracks
+    #: says little about the next particle's (0 / 0.3 / 0.45 / 0.6: 60 frames, slope given
+    #: throughout, removed 0.752 / 0.756 / 0.750 and with fitting from 40 - / 0.752 / 0.748 /
+    #: 0.749, scene light within 0.002)
+    FEW_BAND = 0.3
     #: exposures in a row a settled hole must be seen to dim its particle before that depth is learnt
     HELD = 2
     #: exposures in a row a settled hole must miss its particle (it stays as bright as when lit)
@@ -176,11 +197,18 @@ class DepthProbe:
             return self.w_far, self.w_near
         if self._fit is None:
             x, y = np.array(self._samples).T
-            slope, intercept = np.polyfit(x, y, 1) if np.ptp(x) > 0 else (0.0, float(np.mean(y)))
+            if len(x) < self.FIT_SLOPE:  # the inverse square's slope; only the level is learnt
+                slope = self.SLOPE
+                intercept = float(np.median(y - slope * x))
+            else:
+                slope, intercept = np.polyfit(x, y, 1) if np.ptp(x) > 0 else (0.0, float(np.mean(y)))
             tail = (1.0 - self.prior_coverage) / 2.0
             low, high = np.quantile(y - (slope * x + intercept), [tail, 1.0 - tail])
             pad = (high - low) / 4.0
-            self._fit = (float(slope), float(intercept), float(low - pad), float(high + pad))
+            low, high = low - pad, high + pad
+            if len(x) < self.FIT_SLOPE:  # a few samples' spread says little about the next particle's
+                low, high = min(low, -self.FEW_BAND), max(high, self.FEW_BAND)
+            self._fit = (float(slope), float(intercept), float(low), float(high))
         slope, intercept, low, high = self._fit
         middle = slope * math.log(brightness) + intercept
         lo, hi = max(self.w_far, math.exp(middle + low)), min(self.w_near, math.exp(middle + high))
