@@ -666,10 +666,11 @@ def test_a_view_drifting_over_bare_seabed_shows_no_particles(slope, monkeypatch)
     if not slope:
         monkeypatch.setattr(BackgroundModel, "MISREGISTRATION", 0.0)
     counts = _false_alarms_from_a_moving_vehicle((0.25, 0.0, 0.0), particles=False)
-    if slope:  # 9 a frame; 16 when the ground coming into view took the frame's spatial background
-        assert np.mean(counts[20:]) < 12, counts
+    if slope:  # 3.6 a frame; 16 when the ground coming into view took the frame's spatial background,
+        # 9 with the still view's memory (the background resampled at every move blurs)
+        assert np.mean(counts[20:]) < 6, counts
     else:
-        assert np.mean(counts[20:]) > 60
+        assert np.mean(counts[20:]) > 30
 
 
 def test_a_view_closing_on_the_seabed_stays_followed():
