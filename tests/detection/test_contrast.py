@@ -690,6 +690,23 @@ def test_a_view_that_turns_from_the_first_frame_is_followed_within_a_few():
     assert max(false[3:]) < 60, false
 
 
+def test_frames_of_another_size_start_afresh():
+    # a stream of another size is another camera: a detector that was following a turning view
+    # must detect the new frames exactly as a fresh one (the view's motion once carried over, and
+    # the benchmark's still 1456x1088 frames, after 800x600 ones, were "followed" every frame)
+    used = make_detector("contrast")
+    for frame in _turning_view(0.3, 0.0, 2.0, frames=30):
+        used.detect(frame)
+    fresh = make_detector("contrast")
+    rng = np.random.default_rng(4)
+    ground = (40 + 50 * fractal_noise((300, 400), rng, octaves=4, base=4)).astype(np.float32)
+    for i in range(12):
+        frame = np.clip(ground + rng.normal(0, 2.0, ground.shape), 0, 255).astype(np.uint8)
+        cv2.circle(frame, (50 + 9 * i, 150), 3, 220, -1)
+        a, b = used.detect(frame), fresh.detect(frame)
+        assert np.array_equal(a.centres, b.centres) and np.array_equal(a.radii, b.radii), i
+
+
 def test_a_still_view_is_never_turned(monkeypatch):
     # particles of all sizes crossing still textured ground, a big bright one among them: the looks
     # find nothing to turn, and the background stays where it is

@@ -369,6 +369,8 @@ class BackgroundModel:
             elif self._moved_ago <= self.MOVED_FRAMES:
                 return self.base, cv2.add(self.limit, self._slope_limit())
         if self.alpha == 0.0 or self.background is None or self.background.shape != half.shape:
+            if self.background is not None and self.background.shape != half.shape:
+                self.reset()  # frames of another size: another stream, nothing carries over
             self.background = spatial_background(half, cell=self.cell, window=self.window)
             self.base = cv2.convertScaleAbs(self.background)  # rounded, saturated uint8 (background >= 0)
             h, w = half.shape
