@@ -690,6 +690,25 @@ def test_a_view_that_turns_from_the_first_frame_is_followed_within_a_few():
     assert max(false[3:]) < 60, false
 
 
+@pytest.mark.parametrize("move", [(1.6, 0.0), (0.0, -1.6), (1.6, 1.3), (-1.3, 1.6)])
+def test_the_ground_a_move_brings_into_view_is_the_frames(move):
+    # straight and diagonal: a diagonal drift's new ground touches every row and column, and a
+    # fill counted in bands from the edges left it out (the edge repeated across it)
+    from antiscatter.detection.contrast import BackgroundModel
+
+    rng = np.random.default_rng(2)
+    model = BackgroundModel(cell=8, memory=20)
+    ground = (40 + 50 * fractal_noise((400, 300), rng, octaves=4, base=4)).astype(np.uint8)
+    model.estimate(ground)
+    frame = np.full_like(ground, 200)
+    m = np.float32([[1, 0, move[0]], [0, 1, move[1]]])
+    model._move_background(m, frame)
+    entered = cv2.warpAffine(np.ones_like(ground), m, (400, 300), flags=cv2.INTER_NEAREST,
+                             borderMode=cv2.BORDER_CONSTANT, borderValue=0) == 0
+    assert entered.any() and (model.background[entered] == 200).all()
+    assert (model.background[~entered] < 200).all()
+
+
 def test_frames_of_another_size_start_afresh():
     # a stream of another size is another camera: a detector that was following a turning view
     # must detect the new frames exactly as a fresh one (the view's motion once carried over, and
