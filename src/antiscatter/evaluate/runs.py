@@ -47,7 +47,7 @@ class Matching:
 def _score(frame: int, truth: FrameTruth | None, centres: np.ndarray, radii: np.ndarray, m: Matching,
            masks: tuple[np.ndarray, np.ndarray] | None = None) -> FrameScore:
     if truth is None:
-        truth = FrameTruth(np.empty((0, 2)), np.empty(0), np.empty(0, bool), np.empty(0, np.int64))
+        truth = FrameTruth.empty()
     particle, ignore = masks if masks is not None else (None, None)
     return score_frame(frame, truth.centres, truth.radii, truth.counted, centres, radii,
                        min_gate=m.min_gate, gate_scale=m.gate_scale, particle_mask=particle,
@@ -157,8 +157,7 @@ def evaluate_source_tracking(source: Path, detector: Detector, m: Matching, trut
         if source.is_file():
             with VideoSource(source) as video:
                 fps = video.fps or fps
-    empty = FrameTruth(np.empty((0, 2)), np.empty(0), np.empty(0, bool), np.empty(0, np.int64),
-                       np.empty(0, np.int64))
+    empty = FrameTruth.empty()
 
     def frames():
         for number, image, truth, _ in source_truth_frames(source, m, truth_path, limit):

@@ -25,6 +25,11 @@ class FrameTruth:
     labels: np.ndarray
     ids: np.ndarray | None = None
 
+    @classmethod
+    def empty(cls) -> "FrameTruth":
+        """A frame without truth."""
+        return cls(np.empty((0, 2)), np.empty(0), np.empty(0, bool), np.empty(0, np.int64), np.empty(0, np.int64))
+
 
 def _rows(path: Path) -> tuple[list[str] | None, list[tuple[int, list[str]]]]:
     """(the first row, stripped -- a header, or a MOTChallenge line --, the other rows numbered

@@ -516,12 +516,11 @@ class RealisticScene:
                       [sin_a, cos_a, ty - (sin_a * src_centre + cos_a * src_centre)]], np.float64)
         side = (2 * core + 1) * fine
         patch = cv2.warpAffine(src, m, (side, side), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-        if fine > 1:
+        if fine > 1:  # smaller than a pixel: each pixel its samples' mean, then the optics spread it
             patch = cv2.resize(patch, (2 * core + 1, 2 * core + 1), interpolation=cv2.INTER_AREA)
-        if pad:
-            patch = cv2.copyMakeBorder(patch, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0)
-        if scale < 0.5:  # tiny particle: the optics spread its light over a pixel or so
-            patch = cv2.GaussianBlur(patch, (0, 0), 0.5)
+            if pad:
+                patch = cv2.copyMakeBorder(patch, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0)
+            patch = cv2.GaussianBlur(patch, (0, 0), 0.5)  # over a pixel or so
         if sigma > 0.3:
             patch = cv2.GaussianBlur(patch, (0, 0), sigma)
         if streak > 0.5:

@@ -294,8 +294,7 @@ class Tracker:
         if not keep.all():
             if self.revive_frames:
                 self._bury(~keep & (self.hits >= MOVING_HITS))
-            for name in self._FIELDS:
-                setattr(self, name, getattr(self, name)[keep])
+            self._keep(keep)
         if self._dead:
             unmatched_dets = self._revive(detections, unmatched_dets, detection_ids)
         if len(unmatched_dets):
@@ -324,8 +323,7 @@ class Tracker:
         x, y, r = self.x[:, 0], self.x[:, 1], np.maximum(self.x[:, 4], 0.0)
         inside = (x >= -r) & (x <= width - 1 + r) & (y >= -r) & (y <= height - 1 + r)
         if not inside.all():
-            for name in self._FIELDS:
-                setattr(self, name, getattr(self, name)[inside])
+            self._keep(inside)
 
     def _associate(self, detections: Detections, is_lost: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(matches (K, 2) of (track, detection), unmatched tracks, unmatched detections).
@@ -350,6 +348,11 @@ class Tracker:
         not counting a confirmed track's misses in the dark of its own hole (``max_dark``), as for
         its hole (:meth:`snapshot`): a track whose hole is still on is not lost."""
         return self._unexpected(self.hits >= self.confirm_hits) > self.max_misses
+
+    def _keep(self, keep: np.ndarray) -> None:
+        """Keep the tracks ``keep`` (bool), delete the rest."""
+        for name in self._FIELDS:
+            setattr(self, name, getattr(self, name)[keep])
 
     def _append(self, rows: dict[str, np.ndarray]) -> None:
         """Add tracks: one array per name in ``_FIELDS``, rows in the same order."""
