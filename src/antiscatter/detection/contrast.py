@@ -472,15 +472,15 @@ class BackgroundModel:
         sub = (slice(None, None, 2), slice(None, None, 2))
         if self._profiles is None or self._profiled >= self.bands:
             base = cv2.morphologyEx(self.base[sub], cv2.MORPH_OPEN, _K3)
-            self._profiles = (base, [cv2.reduce(base, axis, cv2.REDUCE_AVG, dtype=cv2.CV_32F).ravel()
+            self._profiles = (base, [_highpass(cv2.reduce(base, axis, cv2.REDUCE_AVG, dtype=cv2.CV_32F).ravel())
                                      for axis in (0, 1)])
             self._profiled = 0
         self._profiled += 1
-        opened, profiles = self._profiles  # the background opened, and its column and row profiles
+        opened, profiles = self._profiles  # the background opened, its column and row profiles high-passed
         frame = cv2.morphologyEx(half[sub], cv2.MORPH_OPEN, _K3)
         # 0: column profile -> x shift; 1: row profile -> y shift
         shifts = [_profile_shift(profiles[axis], cv2.reduce(frame, axis, cv2.REDUCE_AVG, dtype=cv2.CV_32F).ravel(),
-                                 MAX_FOLLOW // 2) for axis in (0, 1)]
+                                 MAX_FOLLOW // 2, passed=True) for axis in (0, 1)]
         if (shifts[0] is None) != (shifts[1] is None):
             # a pan along one axis changes the other profile as ground enters and leaves the view:
             # that one is taken again over the ground both views share
@@ -1444,18 +1444,26 @@ def _overlap_shift(reference: np.ndarray, frame: np.ndarray, axis: int, other: i
     return _profile_shift(*profiles, MAX_FOLLOW // 2, OVERLAP_SCORE)
 
 
-def _profile_shift(reference: np.ndarray, profile: np.ndarray, max_shift: int, min_score: float = 0.8) -> float | None:
+def _highpass(profile: np.ndarray) -> np.ndarray | None:
+    """A brightness profile (1-D) minus its 15-sample running mean, float32, so the lamp's cone does
+    not count; None for a plain view (open water: spread below ``PLAIN``), with nothing to follow."""
+    row = profile.astype(np.float32).reshape(1, -1)
+    row -= cv2.blur(row, (15, 1), borderType=cv2.BORDER_REPLICATE)
+    return None if cv2.meanStdDev(row)[1][0, 0] < PLAIN else row.ravel()
+
+
+def _profile_shift(reference: np.ndarray | None, profile: np.ndarray, max_shift: int, min_score: float = 0.8, *,
+                   passed: bool = False) -> float | None:
     """Shift (samples, sub-sample) that best lays ``reference`` onto ``profile`` (1-D float32, same
     length), within +-max_shift; None when their high-passed correlation there is below 0.8 (no
-    texture to go by, or the view changed more than it moved)."""
+    texture to go by, or the view changed more than it moved).  ``passed``: ``reference`` is
+    already :func:`_highpass`'s (None: plain), as :meth:`BackgroundModel.follow` keeps it."""
     n = len(profile)
     if n < 4 * max_shift:
         return None
-    both = np.stack([reference, profile]).astype(np.float32)
-    # high-pass: minus a 15-sample running mean, so the lamp's cone does not count
-    both -= cv2.blur(both, (15, 1), borderType=cv2.BORDER_REPLICATE)
-    r, p = both
-    if min(cv2.meanStdDev(v)[1][0, 0] for v in (r, p)) < PLAIN:  # a plain view (open water): nothing to follow
+    r = reference if passed else _highpass(reference)
+    p = None if r is None else _highpass(profile)
+    if p is None:
         return None
     # normalised correlation of the profile's middle with every window of the reference (OpenCV, one
     # call); the window starting at j stands for the shift max_shift - j: reversed, index i <-> i - max
