@@ -1084,7 +1084,9 @@ def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarr
     if len(necked):
         flat_c, flat_y, flat_x = _split_flat(pl, px, py, weight[idx], n, necked, full)
         if len(flat_c):
-            keep = ~np.isin(kept_c, flat_c)
+            replaced = np.zeros(n, bool)
+            replaced[flat_c] = True
+            keep = ~replaced[kept_c]
             kept_c = np.concatenate([kept_c[keep], flat_c])
             kept_y = np.concatenate([kept_y[keep], flat_y])
             kept_x = np.concatenate([kept_x[keep], flat_x])
@@ -1107,14 +1109,14 @@ def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarr
     tx[row[kc], rank], ty[row[kc], rank] = kx, ky
     pixels = np.flatnonzero(split[lab])
     r = row[lab[pixels]]
-    # each pixel against its component's peaks: components grouped by how many they have, so a
-    # cluster of a dozen discs does not make every pixel of every pair measure a dozen distances
-    nearest = np.empty(len(pixels), np.intp)
+    # each pixel against its own component's peaks only, all pairs at once (a cluster of a dozen
+    # discs does not make every pixel of every pair measure a dozen distances)
     held = counts[comps][r]
-    for k in np.unique(held).tolist():
-        part = np.flatnonzero(held == k)
-        rp, xp, yp = r[part], x[pixels[part], None], y[pixels[part], None]
-        nearest[part] = np.argmin((xp - tx[rp, :k]) ** 2 + (yp - ty[rp, :k]) ** 2, axis=1)
+    pair = np.repeat(np.arange(len(pixels)), held)
+    rank = np.arange(len(pair)) - np.repeat(np.cumsum(held) - held, held)
+    at = r.take(pair) * width + rank  # the peak's place in tx, ty
+    xp, yp = x.take(pixels).take(pair), y.take(pixels).take(pair)
+    nearest = rank[_first_minima((xp - tx.take(at)) ** 2 + (yp - ty.take(at)) ** 2, held)]
     new_base = n + np.concatenate([[0], np.cumsum(counts[comps] - 1)[:-1]])  # first new label per component
     lab = lab.copy()
     lab[pixels] = np.where(nearest == 0, lab[pixels], new_base[r] + nearest - 1)
@@ -1150,10 +1152,12 @@ def _group_max(lab: np.ndarray, n: int, *values: np.ndarray, fast: bool | None =
         return [np.zeros(n) for _ in values]
     if _FAST_AT if fast is None else fast:
         out = []
-        for v in values:
-            m = np.full(n, -np.inf)
-            np.maximum.at(m, lab, v.astype(np.float64, copy=False))  # one dtype: the fast path
-            m[np.isneginf(m)] = 0.0
+        for v in values:  # in the values' own type (the fast path wants one dtype), then as float
+            low = np.iinfo(v.dtype).min if v.dtype.kind in "iu" else -np.inf
+            m = np.full(n, low, v.dtype)
+            np.maximum.at(m, lab, v)
+            m = m.astype(np.float64)
+            m[m == low] = 0.0
             out.append(m)
         return out
     order, starts = _groups(lab, n)
@@ -1225,9 +1229,7 @@ def _separate(comp: np.ndarray, py: np.ndarray, px: np.ndarray, value: np.ndarra
     kept = first.copy()
     if len(i):
         d2 = (py[i] - py[j]) ** 2 + (px[i] - px[j]) ** 2
-        pick = np.lexsort((d2, i))  # for each peak, its nearest higher peak comes first
-        ip = i[pick]
-        pick = pick[np.concatenate(([True], ip[1:] != ip[:-1]))]
+        pick = _first_minima(d2, rank[rank > 0])  # for each peak, its nearest higher peak
         i, j, d2 = i[pick], j[pick], d2[pick]
         far = d2 >= min_d2
         i, j = i[far], j[far]
@@ -1239,6 +1241,18 @@ def _separate(comp: np.ndarray, py: np.ndarray, px: np.ndarray, value: np.ndarra
             dip = excess[py[i], px[i]].astype(np.float64) - excess[ty, tx].min(axis=1)
             kept[i[dip >= np.maximum(value[i] / 4.0, 3.0 * sigma[i])]] = True
     return comp[kept], py[kept], px[kept]
+
+
+def _first_minima(values: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Where the first minimum of each segment of ``values`` is (indices into ``values``); the
+    segments lie one after another, ``counts`` long (each at least 1) -- np.argmin per segment,
+    for all of them at once."""
+    segment = np.repeat(np.arange(len(counts)), counts)
+    low = np.minimum.reduceat(values, np.cumsum(counts) - counts)
+    at = np.flatnonzero(values == low[segment])
+    first = np.ones(len(at), bool)
+    np.not_equal(segment[at[1:]], segment[at[:-1]], out=first[1:])
+    return at[first]
 
 
 def _split_flat(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, n: int,
