@@ -285,6 +285,16 @@ def test_bench_json_has_every_stage_for_every_detector(cli, tmp_path):
     assert data["input"] == "bgr"
 
 
+def test_bench_plays_its_frames_forwards_and_back_so_nothing_jumps():
+    # cycled, every particle jumped back at once each pool's length, and the contrast detector
+    # took that for the view turning (a still view then followed every frame)
+    from antiscatter.bench import pool_index
+    order = [pool_index(k, 5) for k in range(30)]
+    assert order[:10] == [0, 1, 2, 3, 4, 3, 2, 1, 0, 1]
+    assert all(abs(a - b) == 1 for a, b in zip(order, order[1:]))
+    assert [pool_index(k, 1) for k in range(3)] == [0, 0, 0]
+
+
 def test_bench_on_the_luma_plane(cli):
     result = cli("bench", "--frames", "3", "--sizes", "640x480", "--input", "y", "--json")
     assert result.code == 0, result.err
