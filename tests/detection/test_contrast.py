@@ -682,6 +682,31 @@ def test_a_view_closing_on_the_seabed_stays_followed():
     assert np.mean(false[20:]) < 80, false
 
 
+def test_a_view_that_stops_turning_is_let_go(monkeypatch):
+    # the survey's vehicle (0.25 m/s sideways, turning 4 degrees a second) stops after 30 frames:
+    # each look's estimate of a still view is noisy with particles on its points (corners moving
+    # 0.2-1 px), and counted one look at a time the view was followed on 8 frames in 10 for as long
+    # as it held still; over 16 looks those moves cancel
+    from dataclasses import replace
+
+    from antiscatter.detection.contrast import BackgroundModel
+    from antiscatter.simulate import make_scene
+
+    moves = []
+    move = BackgroundModel._move_background
+    monkeypatch.setattr(BackgroundModel, "_move_background",
+                        lambda self, m, half: (moves.append(self._frames), move(self, m, half))[1])
+    scene = make_scene("survey", rng=np.random.default_rng(1), size=(800, 600))
+    detector = make_detector("contrast")
+    for i in range(90):
+        if i == 30:
+            scene.config = replace(scene.config, vehicle_m_s=(0.0, 0.0, 0.0), yaw_deg_s=0.0)
+        scene.step()
+        detector.detect(scene.render())
+    assert sum(f < 30 for f in moves) > 20, moves  # followed while it turned
+    assert not [f for f in moves if f >= 60], moves
+
+
 def test_a_view_that_turns_from_the_first_frame_is_followed_within_a_few():
     # the survey: sideways at 0.25 m/s and turning 4 degrees a second from the first frame; looks
     # held back for 8 frames let the texture show through more each frame (31 -> 276 false alarms

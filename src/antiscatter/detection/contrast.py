@@ -330,6 +330,7 @@ class BackgroundModel:
         self._moved_ago = 1 << 30  # frames since the view last moved (pan or turn)
         self._turn_moving = False  # a turn was made and the view has not been seen still since
         self._turn_still = 0  # looks in a row that found it still
+        self._turn_moves: list[np.ndarray] = []  # while it moves: the corners' moves of the last looks
         self._typical_noise = 0.0  # the noise map's median
         # match_gain: the rows it reads, for frames of this shape; the pixels of them it compares
         # (flat indices) and frames since they were chosen; the last frame's rows (None: nothing
@@ -578,11 +579,14 @@ class BackgroundModel:
             if far < self.TURN_STILL:
                 self._turn_still += 1
                 self._turn_moving = self._turn_still < self.TURN_STILL_LOOKS
+                self._drifted(None)
                 return False
             self._turn_still = 0
             if not self._fits_better(half, m, gain, 0.0):
+                self._drifted(None)
                 return False  # a poor estimate this frame: the view still counts as moving
             self._move_background(m, half)
+            self._drifted(shift)
             return True
         last, self._turn_last = self._turn_last, None
         if far <= self.TURN_MIN or not self._fits_better(half, m, gain, self.TURN_GAIN):
@@ -592,8 +596,26 @@ class BackgroundModel:
         if last is None or float((last * shift).sum()) < 0.25 * float((last * last).sum()):
             return False  # the first look that saw it, or one that saw the view move another way
         self._move_background(m, half)
-        self._turn_moving, self._turn_still = True, 0
+        self._turn_moving, self._turn_still, self._turn_moves = True, 0, []
         return True
+
+    def _drifted(self, shift: np.ndarray | None) -> None:
+        """While following a turning view: this look's move of the frame's corners (None: none made).
+        Over the last ``TURN_DRIFT_LOOKS`` looks the moves of a view that holds still cancel -- each
+        look's estimate, noisy with particles on the points, moves the background a little, and
+        the next takes it back -- where a turning or zooming view's add up; when they sum to less
+        than ``TURN_STILL`` a look on average the view is still.  (Counted one look at a time, a
+        still view's estimates stay over ``TURN_STILL`` most of the time: after a survey's vehicle
+        stopped, the view was followed on every frame, 8 moves in 10 frames, for as long as it
+        held still.)"""
+        if not self._turn_moving:
+            return
+        self._turn_moves = (self._turn_moves + [np.zeros((4, 2)) if shift is None else shift])[-self.TURN_DRIFT_LOOKS:]
+        if len(self._turn_moves) < self.TURN_DRIFT_LOOKS:
+            return
+        net = float(np.abs(np.sum(self._turn_moves, axis=0)).sum(axis=1).max())
+        if net < self.TURN_STILL * self.TURN_DRIFT_LOOKS:
+            self._turn_moving, self._turn_still, self._turn_moves = False, 0, []
 
     def _fits_better(self, half: np.ndarray, m: np.ndarray, gain: float, margin: float) -> bool:
         """True when the background moved by ``m`` lies closer to the frame, by ``margin`` (a share),
@@ -662,6 +684,8 @@ class BackgroundModel:
     #: no corner by more than ``TURN_STILL`` working pixels
     TURN_STILL = 0.15
     TURN_STILL_LOOKS = 4
+    #: ... or the moves of this many looks in a row add up to less than ``TURN_STILL`` a look (:meth:`_drifted`)
+    TURN_DRIFT_LOOKS = 16
 
     def match_gain(self, half: np.ndarray) -> float:
         """Follow a change of the whole scene's brightness at once: the camera's exposure or gain
