@@ -533,7 +533,8 @@ class BackgroundModel:
         the look before found the view moving the same way (a still view's looks point anywhere).
         From then on the view is followed every frame, each move made however small while it fits
         better than none and than its reverse, until ``TURN_STILL_LOOKS`` looks in a row find the
-        view still (no corner moving ``TURN_STILL``); a look whose move is turned down does not
+        view still (no corner moving ``TURN_STILL``) or the moves of the last ``TURN_DRIFT_LOOKS``
+        cancel out (:meth:`_drifted`); a look whose move is turned down does not
         count as still -- the view closing on the ground at 0.1 m/s grows 0.07 % a frame, each
         frame's estimate of that is noisy with particles on the points, and counted as still, such
         looks ended the following within a few frames (245 false detections a frame, 38 now).
