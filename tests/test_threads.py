@@ -156,3 +156,40 @@ def test_emulated_camera_blocks_until_the_next_exposure():
     time.sleep(0.012)  # a slow reader misses two exposures, as with queue=False
     late = source.read().timestamp_ns
     assert round((late - stamps[-1]) / 5e6) >= 3
+
+
+@pytest.mark.parametrize("mode", ["single", "threads"])
+def test_the_detectors_learning_runs_after_the_pattern_is_out(tmp_path, monkeypatch, mode):
+    # the contrast detector's background update learns for the next frames: the runtime shows
+    # this frame's pattern first (off the latency path), yet detects exactly what detect() does
+    # and logs the update's time with the frame
+    import io
+
+    from antiscatter import runtime
+    from antiscatter.detection import make_detector
+    from antiscatter.outputs.base import NullOutput
+    from antiscatter.sources import open_source
+
+    events = []
+    finish, show = runtime.finish_stages, NullOutput.show
+    monkeypatch.setattr(runtime, "finish_stages", lambda *a, **k: (events.append("learn"), finish(*a, **k))[1])
+    monkeypatch.setattr(NullOutput, "show", lambda self, *a, **k: (events.append("show"), show(self, *a, **k))[1])
+    config = load_config(overrides={"output": {"outputs": ("none",)},
+                                    "run": {"mode": mode, "frames": 30, "metrics": str(tmp_path / "m.csv"),
+                                            "detections": str(tmp_path / "d.csv")}})
+    run(config, log=io.StringIO(), out=io.StringIO())
+    assert events.count("show") == 30
+    if mode == "single":
+        assert events == ["show", "learn"] * 30
+    else:  # the process thread learns while the output thread shows (and may run a frame or two ahead)
+        assert events.count("learn") >= 30
+    rows = list(csv.DictReader((tmp_path / "m.csv").open()))
+    assert all(float(r["Background Update Duration (s)"]) > 0 for r in rows)
+    found = list(csv.DictReader((tmp_path / "d.csv").open()))
+    detector = make_detector("contrast")
+    with open_source("sim") as source:
+        for index in range(30):
+            expected = detector.detect(source.read().image)
+            mine = np.array([[float(r["x"]), float(r["y"]), float(r["radius"])] for r in found
+                             if int(r["frame"]) == index]).reshape(-1, 3)
+            assert np.allclose(mine, np.column_stack([expected.centres, expected.radii]), atol=1e-3), index

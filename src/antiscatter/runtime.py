@@ -31,7 +31,7 @@ from .pattern import render_pattern, scale_mapping
 from .sources import FrameSource, open_source, parse_crop
 from .stats import RunningStats
 
-__all__ = ["REPORT_COLUMNS", "metrics_columns", "time_stages", "Pacer", "RunSummary", "run", "set_niceness", "StopFlag",
+__all__ = ["REPORT_COLUMNS", "metrics_columns", "time_stages", "finish_stages", "Pacer", "RunSummary", "run", "set_niceness", "StopFlag",
            "LatestSlot", "apply_process_controls", "MODES"]
 
 #: Execution modes of ``antiscatter run``.
@@ -70,20 +70,35 @@ def metrics_columns(detector: Detector) -> list[str]:
 
 
 def time_stages(detector: Detector, image: np.ndarray, *,
-                clock: Callable[[], int] = time.perf_counter_ns) -> tuple[Detections, list[int]]:
+                clock: Callable[[], int] = time.perf_counter_ns, defer: bool = False) -> tuple[Detections, list[int]]:
     """Run the detector's stages on one frame, timing each: (detections, nanoseconds per stage).
 
-    The one place stages are timed; ``run`` and ``bench`` both use it.
+    defer: stop before the stages marked ``after`` (learning for the next frames): the
+    detections are known without them; :func:`finish_stages` runs them later and adds their
+    times to the list.  The one place stages are timed; ``run`` and ``bench`` both use it.
     """
     value = image
-    durations = []
+    durations: list[int] = []
     t_prev = clock()
     for stage in detector.stages:
+        if defer and stage.after:
+            break
         value = stage.run(value)
         t_now = clock()
         durations.append(t_now - t_prev)
         t_prev = t_now
     return value, durations
+
+
+def finish_stages(detector: Detector, detections: Detections, durations: list[int], *,
+                  clock: Callable[[], int] = time.perf_counter_ns) -> None:
+    """Run the stages :func:`time_stages` deferred (those after ``len(durations)``), timed, their
+    nanoseconds appended to ``durations``."""
+    value = detections
+    for stage in detector.stages[len(durations):]:
+        t_prev = clock()
+        value = stage.run(value)
+        durations.append(clock() - t_prev)
 
 
 class Pacer:
@@ -272,6 +287,7 @@ class _Record:
     hole_ids: Any = None  # the track ids of this pattern's holes
     intervals: dict | None = None  # depth probing with pulse: each track's whole remaining interval
     exposure: Any = None  # pulse with probing: the pattern for the next exposure (probe halves lifted)
+    learned: threading.Event | None = None  # the detector's deferred stages are done (None: none pending)
 
 
 #: frames per second of a folder of images, which has no clock of its own, when the run is not
@@ -342,6 +358,11 @@ class _Pipeline:
                                 if self.probe is not None and self.pulse_level is not None else None)
         # the light the next exposure gets, in camera pixels at half size (the detector's working scale)
         self.compensate = bool(light.compensate) and light.strategy != "flash" and config.run.mode == "single"
+        # the detector's learning for the next frames (stages marked ``after``) runs once the
+        # pattern is out: in single mode by emit, with threads by the process thread meanwhile
+        # (a worker process runs its detector whole)
+        self.defer = config.run.mode in ("single", "threads")
+        self.learn_on_emit = config.run.mode == "single"
         cw, ch = source.size
         self.light_size = (max(cw // 2, 1), max(ch // 2, 1))
         to_half = np.diag([self.light_size[0] / cw, self.light_size[1] / ch, 1.0])
@@ -369,8 +390,11 @@ class _Pipeline:
         """Detect and track; the holes to draw wait in ``record.pattern`` until :meth:`render`."""
         clock = self.clock
         tc = self.config.track
+        learned = None
         if found is None:
-            detections, stage_ns = time_stages(self.detector, frame.image, clock=clock)
+            detections, stage_ns = time_stages(self.detector, frame.image, clock=clock, defer=self.defer)
+            if len(stage_ns) < len(self.detector.stages):
+                learned = threading.Event()
         else:
             detections = found
         t_processed = t1 + sum(stage_ns)
@@ -407,7 +431,17 @@ class _Pipeline:
             track_ns = clock() - t_track
             t_processed = clock()
         return _Record(frame, t0, t1, detections, stage_ns, track_ns, track_ids, holes, t_processed, 0, probes,
-                       intervals=intervals)
+                       intervals=intervals, learned=learned)
+
+    def learn(self, rec: _Record) -> None:
+        """Run the detector's deferred stages for ``rec`` (its learning for the next frames), timed
+        into its stage times; always marks them done, so nothing waits on a failed one."""
+        if rec.learned is None or rec.learned.is_set():
+            return
+        try:
+            finish_stages(self.detector, rec.detections, rec.stage_ns, clock=self.clock)
+        finally:
+            rec.learned.set()
 
     def render(self, rec: _Record) -> _Record:
         """Draw the record's holes into the next pattern buffer."""
@@ -464,6 +498,12 @@ class _Pipeline:
         for output in self.outputs:
             output.show(shown, rec.frame, rec.detections)
         t_out = clock()
+        shown_ns = time.monotonic_ns()  # the pattern is out: what follows is off the latency path
+        if rec.learned is not None:
+            if self.learn_on_emit:
+                self.learn(rec)
+            else:  # the process thread is doing it (it always marks it done)
+                rec.learned.wait()
         if self.probe is not None:
             self.shown_probes = rec.probes if self.light_on else {}
         # single mode: the next exposure is taken under this pattern (not under a flash)
@@ -484,7 +524,6 @@ class _Pipeline:
                 exposed, self.camera_from_projector, self.light_size, flags=cv2.INTER_LINEAR,
                 borderMode=cv2.BORDER_CONSTANT, borderValue=255))
         self._record(rec.frame.image)
-        shown_ns = time.monotonic_ns()
         latency_ns = shown_ns - rec.frame.timestamp_ns
         summary = self.summary
         summary.output_times.append(shown_ns)
@@ -767,7 +806,9 @@ def _run_threads(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc:
             item = captured.get(finished)
             if item is None:
                 return
-            processed.put(pipeline.analyse(*item))  # the output thread renders: the stages balance
+            rec = pipeline.analyse(*item)
+            processed.put(rec)  # the output thread renders: the stages balance
+            pipeline.learn(rec)  # the detector's learning for the next frames, while it does
 
     def output_loop() -> None:
         pacer = Pacer(rc.fps)

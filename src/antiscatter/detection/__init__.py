@@ -3,7 +3,9 @@
 A detector is a chain of named stages; each stage is a pure function of the
 previous stage's output, the first takes the camera frame and the last returns
 :class:`~antiscatter.detections.Detections`.  The runtime loop times every stage
-(the detector itself never reads a clock).
+(the detector itself never reads a clock).  Stages marked ``after`` come last,
+take the detections and return them unchanged: they learn from this frame for
+the next ones, and the runtime runs them once the pattern is out.
 """
 
 from __future__ import annotations
@@ -24,11 +26,15 @@ class Stage:
 
     name: short key (``"greyscale"``); label: the words used in the metrics
     CSV column ``"<label> Duration (s)"``; run: the pure function.
+    after: the detections are known before this stage: it takes them, learns from
+    the frame for the next ones and returns them unchanged, so the runtime may run it
+    after this frame's pattern has gone out (off the latency path).
     """
 
     name: str
     label: str
     run: Callable[[Any], Any]
+    after: bool = False
 
 
 def _no_state() -> None:

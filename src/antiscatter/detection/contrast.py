@@ -1412,11 +1412,11 @@ def build_contrast(params: ContrastParams) -> Detector:
                         full=(state["grey"], state["base"]), fine=state.get("frozen") is None)
         if persist_kernel is not None:
             state["seen"] = cv2.dilate(mask, persist_kernel)
-        return reflectance, mask, found
+        state["learn"] = (reflectance, mask, state.get("frozen"))
+        return found
 
-    def stage_update(value) -> Detections:
-        reflectance, mask, found = value
-        model.learn(reflectance, mask, state.get("frozen"))
+    def stage_update(found: Detections) -> Detections:
+        model.learn(*state.pop("learn"))
         return found
 
     stages = (
@@ -1425,7 +1425,7 @@ def build_contrast(params: ContrastParams) -> Detector:
         Stage("threshold", "Local Threshold", stage_threshold),
         Stage("label", "Connected Components", stage_label),
         Stage("measure", "Measure Particles", stage_measure),
-        Stage("update", "Background Update", stage_update),
+        Stage("update", "Background Update", stage_update, after=True),
     )
     return Detector("contrast", stages, params, reset=model.reset, set_light=set_light, expect=expect)
 
