@@ -1410,13 +1410,15 @@ def build_contrast(params: ContrastParams) -> Detector:
                         max_radius=params.max_radius, split=params.split, frame_width=state["width"],
                         factor=state["factor"], lone_k=params.lone_k, seen=seen,
                         full=(state["grey"], state["base"]), fine=state.get("frozen") is None)
-        if persist_kernel is not None:
-            state["seen"] = cv2.dilate(mask, persist_kernel)
         state["learn"] = (reflectance, mask, state.get("frozen"))
         return found
 
     def stage_update(found: Detections) -> Detections:
-        model.learn(*state.pop("learn"))
+        """For the next frames: the background learns from this one, and where it was bright is kept."""
+        reflectance, mask, frozen = state.pop("learn")
+        model.learn(reflectance, mask, frozen)
+        if persist_kernel is not None:
+            state["seen"] = cv2.dilate(mask, persist_kernel)
         return found
 
     stages = (
