@@ -297,10 +297,13 @@ class BackgroundModel:
     UNDER_WARM = 0.25
 
     def __init__(self, *, cell: int, memory: int, k: float = 4.0, min_contrast: float = 4.0,
-                 bands: int = 4, follow: bool = True, window: int = 0) -> None:
+                 bands: int = 4, follow: bool = True, window: int = 0, defer_looks: bool = False) -> None:
         self.cell = cell
         self.window = window
         self.follows = follow
+        #: routine looks at a still view's flow are taken by :meth:`look_deferred` (after the
+        #: detections) instead of in :meth:`register`
+        self.defer_looks = defer_looks
         self.k = k
         self.min_contrast = min_contrast
         self.alpha = 1.0 / memory if memory else 0.0
@@ -331,6 +334,7 @@ class BackgroundModel:
         self._turn_moving = False  # a turn was made and the view has not been seen still since
         self._turn_still = 0  # looks in a row that found it still
         self._turn_moves: list[np.ndarray] = []  # while it moves: the corners' moves of the last looks
+        self._look_due = False  # a routine look left for after the detections (defer_looks)
         self._typical_noise = 0.0  # the noise map's median
         # match_gain: the rows it reads, for frames of this shape; the pixels of them it compares
         # (flat indices) and frames since they were chosen; the last frame's rows (None: nothing
@@ -549,6 +553,23 @@ class BackgroundModel:
             self._turn_wait -= 1
             return False
         self._turn_wait = self.TURN_EVERY - 1
+        if self.defer_looks and not self._turn_moving and self._turn_last is None:
+            # a routine look at a still view cannot move it (that takes two looks that agree): it is
+            # taken after the detections are out (:meth:`look_deferred`)
+            self._look_due = True
+            return False
+        return self._look(half)
+
+    def look_deferred(self, half: np.ndarray) -> None:
+        """The routine look :meth:`register` left for after this frame's detections (call before
+        :meth:`learn`, with the frame :meth:`estimate` had): the same look, on the same
+        background; if it sees the view move, the next frame looks again, before its detection."""
+        if self._look_due:
+            self._look_due = False
+            self._look(half)
+
+    def _look(self, half: np.ndarray) -> bool:
+        """One look at the view's flow (see :meth:`register`); True when it moved the background."""
         h, w = half.shape
         size = (w // 2, h // 2)
         if min(size) < 32:
@@ -1351,7 +1372,7 @@ def _strip(lab: np.ndarray, x: np.ndarray, y: np.ndarray, n: int, wanted: np.nda
 def build_contrast(params: ContrastParams) -> Detector:
     """The ``contrast`` chain as timed stages (one background model per detector instance)."""
     model = BackgroundModel(cell=params.cell, memory=params.memory, k=params.k, min_contrast=params.min_contrast,
-                            follow=params.follow)
+                            follow=params.follow, defer_looks=True)
     state: dict[str, Any] = {"factor": 2, "width": 800}
     persist_kernel = _disc(params.persist_radius) if params.persist_radius else None
 
@@ -1416,6 +1437,7 @@ def build_contrast(params: ContrastParams) -> Detector:
     def stage_update(found: Detections) -> Detections:
         """For the next frames: the background learns from this one, and where it was bright is kept."""
         reflectance, mask, frozen = state.pop("learn")
+        model.look_deferred(reflectance)  # a still view's routine look at its flow, off the latency path
         model.learn(reflectance, mask, frozen)
         if persist_kernel is not None:
             state["seen"] = cv2.dilate(mask, persist_kernel)
