@@ -71,12 +71,17 @@ class SourceConfig:
             parse_size(self.size)
         if not self.camera_fps > 0:
             raise ValueError(f"camera_fps: got {self.camera_fps}, allowed > 0")
-        if not (0 <= self.camera_exposure_ms <= 1e3 / self.camera_fps):
+        from .sources.camera import GAIN_RANGE, exposure_fault, frame_us
+
+        # 0 = automatic exposure / gain 1.0; the camera's own rule (exposure_fault), worded for these keys
+        fault = exposure_fault(self.camera_fps, self.camera_exposure_ms or None, self.camera_gain or None)
+        if fault == "exposure" or self.camera_exposure_ms < 0:
             raise ValueError(f"camera_exposure_ms: got {self.camera_exposure_ms}, allowed 0 (automatic) to the "
-                             f"frame period ({1e3 / self.camera_fps:.2f} ms)")
-        if not (self.camera_gain == 0 or 1.0 <= self.camera_gain <= 64.0):
-            raise ValueError(f"camera_gain: got {self.camera_gain}, allowed 0 (1.0 with a fixed exposure) or 1 to 64")
-        if self.camera_gain and not self.camera_exposure_ms:
+                             f"frame period ({frame_us(self.camera_fps) / 1e3:.2f} ms)")
+        if fault == "gain" or self.camera_gain < 0:
+            raise ValueError(f"camera_gain: got {self.camera_gain}, allowed 0 (1.0 with a fixed exposure) or "
+                             f"{GAIN_RANGE[0]:g} to {GAIN_RANGE[1]:g}")
+        if fault == "gain alone":
             raise ValueError(f"camera_gain: got {self.camera_gain}, goes with a fixed camera_exposure_ms")
         if self.seed < 0:
             raise ValueError(f"seed: got {self.seed}, allowed >= 0")

@@ -155,3 +155,26 @@ def test_record_takes_the_same_exposure_settings(cli, tmp_path):
     result = cli("record", str(tmp_path / "r.mkv"), "--source", "camera", "--fps", "60", "--camera-exposure-ms", "40")
     assert result.code == 2 and "camera exposure 40.0 ms: allowed 0 < exposure <= the frame period" in result.err
     assert not (tmp_path / "r.mkv").exists()
+
+
+@pytest.mark.parametrize("fps, exposure, gain", [
+    (60.0, 16.667, None), (60.0, 16.668, None), (60.0, 4.0, 64.0), (60.0, 4.0, 64.5), (60.0, 4.0, 0.99),
+    (120.0, 8.333, 1.0), (120.0, 8.4, None), (30.0, None, 2.0), (30.0, -1.0, None), (30.0, float("nan"), None)])
+def test_the_config_and_the_camera_accept_the_same_exposures(fps, exposure, gain):
+    # one rule (exposure_fault) behind both: a config value is refused exactly when the camera
+    # would refuse it (0 in the config = automatic exposure / gain 1.0)
+    from antiscatter.config import SourceConfig
+    from antiscatter.sources.camera import camera_controls
+
+    try:
+        camera_controls(fps, exposure, gain)
+        camera_ok = True
+    except UsageError:
+        camera_ok = False
+    try:
+        SourceConfig(spec="camera", camera_fps=fps, camera_exposure_ms=0.0 if exposure is None else exposure,
+                     camera_gain=0.0 if gain is None else gain)
+        config_ok = True
+    except ValueError:
+        config_ok = False
+    assert camera_ok == config_ok

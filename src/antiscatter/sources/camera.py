@@ -13,7 +13,29 @@ from typing import Any, Callable
 from ..errors import UsageError
 from .base import Frame, FrameSource
 
-__all__ = ["CameraSource", "load_picamera2", "camera_controls"]
+__all__ = ["CameraSource", "load_picamera2", "camera_controls", "exposure_fault", "GAIN_RANGE"]
+
+#: the sensor's analogue gain, lowest to highest (IMX296)
+GAIN_RANGE = (1.0, 64.0)
+
+
+def frame_us(fps: float) -> int:
+    """The frame period in whole microseconds, as the camera's ``FrameDurationLimits`` take it."""
+    return int(round(1e6 / fps))
+
+
+def exposure_fault(fps: float, exposure_ms: float | None, gain: float | None) -> str | None:
+    """What is wrong with a fixed exposure (None: automatic) and gain (None: 1.0 with a fixed
+    exposure) at ``fps``: ``"exposure"`` (not within 0 < exposure <= the frame period),
+    ``"gain"`` (outside ``GAIN_RANGE``), ``"gain alone"`` (a gain with automatic exposure), or
+    None.  The one rule; the config and :func:`camera_controls` word it each for their keys."""
+    if exposure_ms is None:
+        return None if gain is None else "gain alone"
+    if not (math.isfinite(exposure_ms) and 0 < exposure_ms * 1e3 <= frame_us(fps)):
+        return "exposure"
+    if gain is not None and not (math.isfinite(gain) and GAIN_RANGE[0] <= gain <= GAIN_RANGE[1]):
+        return "gain"
+    return None
 
 
 def load_picamera2() -> tuple[Callable[[], Any], Any]:
@@ -30,18 +52,19 @@ def load_picamera2() -> tuple[Callable[[], Any], Any]:
 def camera_controls(fps: float, exposure_ms: float | None = None, gain: float | None = None) -> dict[str, Any]:
     """The libcamera controls for a frame rate and, when given, a fixed exposure and gain; a bad
     value is a one-line UsageError naming it and what is allowed."""
-    frame_us = int(round(1e6 / fps))
-    controls: dict[str, Any] = {"FrameDurationLimits": (frame_us, frame_us)}
-    if exposure_ms is None:
-        if gain is not None:
-            raise UsageError("camera gain: goes with a fixed exposure (camera_exposure_ms)")
-        return controls
-    if not (math.isfinite(exposure_ms) and 0 < exposure_ms * 1e3 <= frame_us):
+    period = frame_us(fps)
+    controls: dict[str, Any] = {"FrameDurationLimits": (period, period)}
+    fault = exposure_fault(fps, exposure_ms, gain)
+    if fault == "gain alone":
+        raise UsageError("camera gain: goes with a fixed exposure (camera_exposure_ms)")
+    if fault == "exposure":
         raise UsageError(f"camera exposure {exposure_ms} ms: allowed 0 < exposure <= the frame period "
-                         f"({frame_us / 1e3:.2f} ms at {fps:g} frames/s)")
+                         f"({period / 1e3:.2f} ms at {fps:g} frames/s)")
+    if fault == "gain":
+        raise UsageError(f"camera gain {gain}: allowed {GAIN_RANGE[0]} to {GAIN_RANGE[1]:g}")
+    if exposure_ms is None:
+        return controls
     gain = 1.0 if gain is None else gain
-    if not (math.isfinite(gain) and 1.0 <= gain <= 64.0):
-        raise UsageError(f"camera gain {gain}: allowed 1.0 to 64")
     controls.update({"AeEnable": False, "ExposureTime": int(round(exposure_ms * 1e3)), "AnalogueGain": float(gain)})
     return controls
 
