@@ -374,9 +374,9 @@ def _evaluate(args: argparse.Namespace) -> int:
         if args.twin_seeds < 1:
             raise UsageError(f"--twin-seeds {args.twin_seeds}: allowed >= 1")
         bench_result = None
-        if args.bench_frames:
+        if args.bench_frames:  # BGR frames (files, the simulator, webcams) and the Pi camera's Y plane
             from .bench import bench
-            bench_result = bench(detectors=detectors, frames=args.bench_frames)
+            bench_result = [bench(detectors=detectors, frames=args.bench_frames, input=kind) for kind in ("bgr", "y")]
         markdown, data = scoreboard(scenarios=scenarios, catalogue_version=version, detectors=detectors,
                                     real_pairs=real, matching=m, bench_result=bench_result,
                                     frames_limit=args.frames, log=lambda t: print(t, file=sys.stderr),

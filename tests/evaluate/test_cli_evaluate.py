@@ -325,6 +325,10 @@ def test_scoreboard_end_to_end_on_a_tiny_catalogue(tmp_path, cli):
     assert "catalogue version 3" in text
     assert "| tiny | seed |" in text and "| tinybubbles | seed |" in text and "| real: x_task1 | seed |" in text
     assert "## Latency" in text
+    latency = text.split("## Latency")[1].split("## Tracking")[0]
+    for size in ("800x600", "1456x1088"):  # BGR frames and the Pi camera's luma plane, each detector
+        for kind in ("bgr", "y"):
+            assert f"| {size} | {kind} | seed |" in latency and f"| {size} | {kind} | contrast |" in latency
     assert "## Tracking" in text and "| tinybubbles |" in text.split("## Tracking")[1]
     assert "## Closed loop" not in text
     bad = cli("evaluate", "--catalogue", "--catalogue-file", str(catalogue), "--data", str(tmp_path / "data"),

@@ -154,22 +154,28 @@ def scoreboard(*, scenarios: dict[str, Any], catalogue_version: int, detectors: 
     md += _table(accuracy, columns)
     data = {"catalogue_version": catalogue_version, "matching": vars(matching), "accuracy": accuracy}
     if bench_result is not None:
-        md += ["", "## Latency (`antiscatter bench`)", "", f"Machine: {bench_result.machine}; "
-               f"{bench_result.threads} OpenCV thread(s); {bench_result.frames} frames per size, detectors "
-               "interleaved. Times in microseconds per frame.", ""]
+        results = list(bench_result) if isinstance(bench_result, (list, tuple)) else [bench_result]
+        first = results[0]
+        md += ["", "## Latency (`antiscatter bench`)", "", f"Machine: {first.machine}; "
+               f"{first.threads} OpenCV thread(s); {first.frames} frames per size, detectors "
+               "interleaved. Times in microseconds per frame. Input: BGR frames (video files, the simulator, "
+               "webcams) or the luma plane alone (`--input y`: the Pi camera's YUV420 stream, no colour "
+               "conversion); each input its own run.", ""]
         rows = []
-        for entry in bench_result.sizes:
-            for name, d in entry["detectors"].items():
-                t = d["total"]
-                rows.append({"size": entry["size"], "detector": name, "mean": t["mean_us"], "sd": t["sd_us"],
-                             "median": t["median_us"], "p99": t["p99_us"], "max": t["max_us"],
-                             "speedup": d["speedup_vs_seed"], "x_floor": d["x_floor"],
-                             "floor": entry["copy_floor_us"]["median_us"]})
-        md += _table(rows, [("size", "size", ""), ("detector", "detector", ""), ("mean", "mean", "{:.0f}"),
+        for result in results:
+            for entry in result.sizes:
+                for name, d in entry["detectors"].items():
+                    t = d["total"]
+                    rows.append({"size": entry["size"], "input": result.input, "detector": name,
+                                 "mean": t["mean_us"], "sd": t["sd_us"], "median": t["median_us"], "p99": t["p99_us"],
+                                 "max": t["max_us"], "speedup": d["speedup_vs_seed"], "x_floor": d["x_floor"],
+                                 "floor": entry["copy_floor_us"]["median_us"]})
+        md += _table(rows, [("size", "size", ""), ("input", "input", ""), ("detector", "detector", ""),
+                            ("mean", "mean", "{:.0f}"),
                             ("sd", "sd", "{:.0f}"), ("median", "median", "{:.0f}"), ("p99", "p99", "{:.0f}"),
                             ("max", "max", "{:.0f}"), ("speedup", "x seed's throughput", "{:.2f}"),
                             ("floor", "copy floor", "{:.0f}"), ("x_floor", "x floor", "{:.1f}")])
-        data["bench"] = bench_result.as_dict()
+        data["bench"] = [result.as_dict() for result in results]
     if tracking:
         md += ["", "## Tracking (default detector + Kalman tracker)", "",
                "Against the simulator's particle ids; prediction error = distance between a confirmed track's "
