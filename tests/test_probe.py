@@ -200,3 +200,14 @@ def test_a_depth_is_learnt_only_once_its_settled_hole_has_held_the_particle_twic
     off = DepthProbe(GEOMETRY.plane_mapping, prior_samples=0)
     _settle(off, 2, centre, 1 / 0.8, 100.0)
     assert off.prior_size() == 0 and off.prior(100.0) == (off.w_far, off.w_near)
+
+
+def test_the_priors_line_is_the_least_squares_fit():
+    # the normal equations (cheaper than np.polyfit, run whenever a track settles) give polyfit's line
+    from antiscatter.probe import _line
+
+    rng = np.random.default_rng(4)
+    x = rng.normal(3.0, 1.0, 200)
+    y = 0.45 * x - 1.2 + rng.normal(0, 0.1, 200)
+    assert np.allclose(_line(x, y), np.polyfit(x, y, 1), rtol=1e-9, atol=1e-12)
+    assert _line(np.full(5, 2.0), np.arange(5.0)) == (0.0, 2.0)  # x all alike: flat, at y's mean
