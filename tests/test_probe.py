@@ -211,3 +211,12 @@ def test_the_priors_line_is_the_least_squares_fit():
     y = 0.45 * x - 1.2 + rng.normal(0, 0.1, 200)
     assert np.allclose(_line(x, y), np.polyfit(x, y, 1), rtol=1e-9, atol=1e-12)
     assert _line(np.full(5, 2.0), np.arange(5.0)) == (0.0, 2.0)  # x all alike: flat, at y's mean
+
+
+def test_the_priors_quantiles_are_numpys():
+    from antiscatter.probe import _quantiles
+
+    rng = np.random.default_rng(6)
+    for n in (1, 2, 3, 7, 40, 399, 400):
+        values = rng.normal(size=n) * 3.0
+        np.testing.assert_array_equal(_quantiles(values, (0.1, 0.9)), np.quantile(values, [0.1, 0.9]))
