@@ -68,3 +68,20 @@ def test_many_particles_match_exactly_against_a_dense_solution(count, field, gat
     ok = cost[a, b] < 1e6
     assert len(m) == ok.sum()
     assert np.isclose(d[m[:, 0], m[:, 1]].sum(), cost[a[ok], b[ok]].sum())
+
+
+def test_all_distances_at_once_and_the_k_d_tree_give_the_same_matches(monkeypatch):
+    # up to DENSE_PAIRS pairs the candidates come from the full distance matrix, beyond it (or when
+    # a gate holds more than `neighbours` detections) from a k-d tree: the same matches either way
+    from antiscatter import assignment
+
+    rng = np.random.default_rng(11)
+    cases = []
+    for _ in range(200):
+        nt, nd = rng.integers(0, 50), rng.integers(0, 50)
+        cases.append((rng.uniform(0, 100, (nt, 2)), rng.uniform(1, 15, nt), rng.uniform(0, 100, (nd, 2))))
+    dense = [assignment.match(*case) for case in cases]
+    monkeypatch.setattr(assignment, "DENSE_PAIRS", 0)
+    for case, got in zip(cases, dense):
+        for a, b in zip(got, assignment.match(*case)):
+            np.testing.assert_array_equal(a, b)

@@ -14,6 +14,11 @@ from scipy.spatial import cKDTree
 __all__ = ["match", "gates"]
 
 
+#: up to this many (truth, detection) pairs the candidates come from all their distances at once
+#: rather than a k-d tree (tracking 100-300 particles a frame: about 300 x 300)
+DENSE_PAIRS = 90_000
+
+
 def gates(truth_radii: np.ndarray, *, min_gate: float = 2.0, scale: float = 1.0) -> np.ndarray:
     """Largest centre distance (pixels) at which a detection counts for each truth particle:
     ``max(scale * radius, min_gate)``."""
@@ -49,17 +54,29 @@ def match(truth_centres: np.ndarray, truth_gates: np.ndarray, det_centres: np.nd
     nt, nd = len(truth_centres), len(det_centres)
     if nt == 0 or nd == 0:
         return np.empty((0, 2), np.int64), np.arange(nt), np.arange(nd)
-    tree = cKDTree(det_centres)
     truth_gates = np.asarray(truth_gates, dtype=np.float64)
     # the `neighbours` nearest detections within each gate are the candidates
     k = min(neighbours, nd)
-    dist, cols = tree.query(truth_centres, k=k, distance_upper_bound=float(truth_gates.max()) * (1 + 1e-9))
-    dist, cols = dist.reshape(nt, k), cols.reshape(nt, k)
-    ok = dist <= truth_gates[:, None]
-    if not ok.any():
+    rows = None
+    if nt * nd <= DENSE_PAIRS:  # all distances at once: cheaper than building and querying a tree
+        d2 = np.square(truth_centres[:, None, 0] - det_centres[None, :, 0])
+        d2 += np.square(truth_centres[:, None, 1] - det_centres[None, :, 1])
+        near = np.flatnonzero(d2 <= np.square(truth_gates * (1 + 1e-9))[:, None])
+        if near.size == 0 or np.bincount(near // nd).max() <= k:  # no gate holds more than k: all are candidates
+            rows, cols = np.divmod(near, nd)
+            dist = np.sqrt(d2.ravel()[near])
+            ok = dist <= truth_gates[rows]
+            rows, cols, dist = rows[ok], cols[ok], dist[ok]
+    if rows is None:
+        tree = cKDTree(det_centres)
+        dist, cols = tree.query(truth_centres, k=k, distance_upper_bound=float(truth_gates.max()) * (1 + 1e-9))
+        dist, cols = dist.reshape(nt, k), cols.reshape(nt, k)
+        ok = dist <= truth_gates[:, None]
+        rows = np.broadcast_to(np.arange(nt)[:, None], ok.shape)[ok]
+        cols, dist = cols[ok], dist[ok]
+    if len(rows) == 0:
         return np.empty((0, 2), np.int64), np.arange(nt), np.arange(nd)
-    rows = np.broadcast_to(np.arange(nt)[:, None], ok.shape)[ok]
-    cols, dist = cols[ok].astype(np.int64), dist[ok]
+    rows, cols = rows.astype(np.intp), cols.astype(np.int64)
     # most groups are one candidate pair -- both ends have no other candidate: matched as they are
     single = (np.bincount(rows, minlength=nt)[rows] == 1) & (np.bincount(cols, minlength=nd)[cols] == 1)
     pair_rows, pair_cols = [rows[single]], [cols[single]]
