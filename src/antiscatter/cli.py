@@ -373,12 +373,12 @@ def _evaluate(args: argparse.Namespace) -> int:
             raise UsageError(f"--twin-frames {args.twin_frames}: allowed >= 0 (0 leaves the table out)")
         if args.twin_seeds < 1:
             raise UsageError(f"--twin-seeds {args.twin_seeds}: allowed >= 1")
-        bench_result = None
+        bench_results = None
         if args.bench_frames:  # BGR frames (files, the simulator, webcams) and the Pi camera's Y plane
             from .bench import bench
-            bench_result = [bench(detectors=detectors, frames=args.bench_frames, input=kind) for kind in ("bgr", "y")]
+            bench_results = [bench(detectors=detectors, frames=args.bench_frames, input=kind) for kind in ("bgr", "y")]
         markdown, data = scoreboard(scenarios=scenarios, catalogue_version=version, detectors=detectors,
-                                    real_pairs=real, matching=m, bench_result=bench_result,
+                                    real_pairs=real, matching=m, bench_results=bench_results,
                                     frames_limit=args.frames, log=lambda t: print(t, file=sys.stderr),
                                     twin_frames=args.twin_frames, twin_seeds=args.twin_seeds)
         report = Path(args.report)

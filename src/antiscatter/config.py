@@ -75,10 +75,10 @@ class SourceConfig:
 
         # 0 = automatic exposure / gain 1.0; the camera's own rule (exposure_fault), worded for these keys
         fault = exposure_fault(self.camera_fps, self.camera_exposure_ms or None, self.camera_gain or None)
-        if fault == "exposure" or self.camera_exposure_ms < 0:
+        if fault == "exposure":
             raise ValueError(f"camera_exposure_ms: got {self.camera_exposure_ms}, allowed 0 (automatic) to the "
                              f"frame period ({frame_us(self.camera_fps) / 1e3:.2f} ms)")
-        if fault == "gain" or self.camera_gain < 0:
+        if fault == "gain" or self.camera_gain < 0:  # (a negative gain with automatic exposure: its range first)
             raise ValueError(f"camera_gain: got {self.camera_gain}, allowed 0 (1.0 with a fixed exposure) or "
                              f"{GAIN_RANGE[0]:g} to {GAIN_RANGE[1]:g}")
         if fault == "gain alone":

@@ -31,8 +31,8 @@ from .pattern import render_pattern, scale_mapping
 from .sources import FrameSource, open_source, parse_crop
 from .stats import RunningStats
 
-__all__ = ["REPORT_COLUMNS", "metrics_columns", "time_stages", "finish_stages", "Pacer", "RunSummary", "run", "set_niceness", "StopFlag",
-           "LatestSlot", "apply_process_controls", "MODES"]
+__all__ = ["REPORT_COLUMNS", "metrics_columns", "time_stages", "finish_stages", "Pacer", "RunSummary", "run",
+           "set_niceness", "StopFlag", "LatestSlot", "apply_process_controls", "MODES"]
 
 #: Execution modes of ``antiscatter run``.
 MODES = ("single", "threads", "processes", "processes-pickle")

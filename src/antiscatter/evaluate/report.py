@@ -112,7 +112,7 @@ def _table(rows: list[dict[str, Any]], columns: list[tuple[str, str, str]]) -> l
 
 
 def scoreboard(*, scenarios: dict[str, Any], catalogue_version: int, detectors: list[str],
-               real_pairs: list[tuple[str, Path, Path]], matching: Any, bench_result: Any | None,
+               real_pairs: list[tuple[str, Path, Path]], matching: Any, bench_results: list[Any] | None,
                frames_limit: int | None = None, log: Callable[[str], None] = lambda s: None,
                tracking: bool = True, twin_frames: int = 0, twin_seeds: int = 3) -> tuple[str, dict]:
     """Run every detector on every scenario and real pair; return (markdown, data).
@@ -153,16 +153,15 @@ def scoreboard(*, scenarios: dict[str, Any], catalogue_version: int, detectors: 
           "of max-channel |degraded - clean| > 20 of 3 px or more.", "", "## Accuracy", ""]
     md += _table(accuracy, columns)
     data = {"catalogue_version": catalogue_version, "matching": vars(matching), "accuracy": accuracy}
-    if bench_result is not None:
-        results = list(bench_result) if isinstance(bench_result, (list, tuple)) else [bench_result]
-        first = results[0]
+    if bench_results:  # one BenchResult per input (BGR frames, the luma plane)
+        first = bench_results[0]
         md += ["", "## Latency (`antiscatter bench`)", "", f"Machine: {first.machine}; "
                f"{first.threads} OpenCV thread(s); {first.frames} frames per size, detectors "
                "interleaved. Times in microseconds per frame. Input: BGR frames (video files, the simulator, "
                "webcams) or the luma plane alone (`--input y`: the Pi camera's YUV420 stream, no colour "
                "conversion); each input its own run.", ""]
         rows = []
-        for result in results:
+        for result in bench_results:
             for entry in result.sizes:
                 for name, d in entry["detectors"].items():
                     t = d["total"]
@@ -175,7 +174,7 @@ def scoreboard(*, scenarios: dict[str, Any], catalogue_version: int, detectors: 
                             ("sd", "sd", "{:.0f}"), ("median", "median", "{:.0f}"), ("p99", "p99", "{:.0f}"),
                             ("max", "max", "{:.0f}"), ("speedup", "x seed's throughput", "{:.2f}"),
                             ("floor", "copy floor", "{:.0f}"), ("x_floor", "x floor", "{:.1f}")])
-        data["bench"] = [result.as_dict() for result in results]
+        data["bench"] = [result.as_dict() for result in bench_results]
     if tracking:
         md += ["", "## Tracking (default detector + Kalman tracker)", "",
                "Against the simulator's particle ids; prediction error = distance between a confirmed track's "

@@ -13,7 +13,7 @@ from typing import Any, Callable
 from ..errors import UsageError
 from .base import Frame, FrameSource
 
-__all__ = ["CameraSource", "load_picamera2", "camera_controls", "exposure_fault", "GAIN_RANGE"]
+__all__ = ["CameraSource", "load_picamera2", "camera_controls", "exposure_fault", "frame_us", "GAIN_RANGE"]
 
 #: the sensor's analogue gain, lowest to highest (IMX296)
 GAIN_RANGE = (1.0, 64.0)
