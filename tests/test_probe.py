@@ -25,19 +25,19 @@ def test_bisection_finds_a_particles_depth_from_lit_and_dimmed_exposures():
         a, b = p.probes(hole)[7]
         brightness = lit * (0.2 if a <= true_w <= b else 1.0)  # dimmed only when the probe held it
         p.observe(Detections(centre, [4.0], scores=[brightness], track_ids=[7]), {7: (a, b)}, np.empty(0))
-    track = p.tracks[7]
-    assert track.lo <= true_w <= track.hi
-    assert p.span_px(centre, np.array([track.lo]), np.array([track.hi]))[0] <= 12.0
+    lo, hi = p.intervals()[7]
+    assert lo <= true_w <= hi
+    assert p.span_px(centre, np.array([lo]), np.array([hi]))[0] <= 12.0
     # settled: the probe is the whole (small) interval; a particle that vanished counts as dimmed
     a, b = p.probes(hole)[7]
-    assert (a, b) == (track.lo, track.hi)
+    assert (a, b) == (lo, hi)
     p.observe(Detections.empty(), {7: (a, b)}, np.array([7]))
-    assert (p.tracks[7].lo, p.tracks[7].hi) == (a, b)
+    assert p.intervals()[7] == (a, b)
     # the settled hole missed (the particle came back fully lit) twice in a row: the search starts again
     p.observe(Detections(centre, [4.0], scores=[lit], track_ids=[7]), {7: (a, b)}, np.empty(0))
-    assert (p.tracks[7].lo, p.tracks[7].hi) == (a, b)
+    assert p.intervals()[7] == (a, b)
     p.observe(Detections(centre, [4.0], scores=[lit], track_ids=[7]), {7: (a, b)}, np.empty(0))
-    assert (p.tracks[7].lo, p.tracks[7].hi) == (p.w_far, p.w_near)
+    assert p.intervals()[7] == (p.w_far, p.w_near)
 
 
 @pytest.mark.parametrize("covered, under", [(0.7, True), (0.3, False)])
@@ -50,10 +50,9 @@ def test_a_particle_is_under_the_probe_when_most_of_it_is(covered, under):
     a, b = p.probes(Detections(centre, [8.0], track_ids=[2]))[2]
     seen = lit * (covered * 0.1 + (1 - covered))
     p.observe(Detections(centre, [8.0], scores=[seen], track_ids=[2]), {2: (a, b)}, np.empty(0))
-    track = p.tracks[2]
-    assert ((track.lo, track.hi) == (a, b)) is under  # under: the probe's half; not: the other half
+    assert (p.intervals()[2] == (a, b)) is under  # under: the probe's half; not: the other half
     if not under:
-        assert (track.lo, track.hi) == (b, p.w_near)
+        assert p.intervals()[2] == (b, p.w_near)
 
 
 def test_the_segment_spans_the_disparity_between_near_and_far():
@@ -73,7 +72,7 @@ def test_the_segment_spans_the_disparity_between_near_and_far():
     forgotten = probe()
     forgotten.observe(Detections(centre, [2.0], scores=[50.0], track_ids=[3]), {}, np.empty(0))
     forgotten.forget(np.array([4]))
-    assert forgotten.tracks == {}
+    assert len(forgotten.intervals()) == 0
 
 
 def test_a_probed_hole_withholds_light_over_its_interval_and_no_further():
@@ -129,7 +128,7 @@ def test_brightness_learnt_from_settled_depths_narrows_a_new_particles_search():
         lit = 40.0 * rng.uniform(0.6, 1.0) / z ** 2
         if tid == 1:  # before enough settled tracks: the whole range
             p.observe(Detections(centre, [3.0], scores=[lit], track_ids=[tid]), {}, np.empty(0))
-            assert (p.tracks[tid].lo, p.tracks[tid].hi) == full
+            assert p.intervals()[tid] == full
         _settle(p, tid, centre, 1 / z, lit)
         p.forget(np.array([]))
     for z in (0.5, 1.0, 2.0):
@@ -138,7 +137,7 @@ def test_brightness_learnt_from_settled_depths_narrows_a_new_particles_search():
         assert lo < 1 / z < hi
         assert (hi - lo) < 0.5 * (p.w_near - p.w_far)  # at most half the range to search
         p.observe(Detections(centre, [3.0], scores=[lit], track_ids=[99]), {}, np.empty(0))
-        assert (p.tracks[99].lo, p.tracks[99].hi) == (lo, hi)  # where a new track starts
+        assert p.intervals()[99] == (lo, hi)  # where a new track starts
         p.forget(np.array([]))
     # a settled hole that misses twice in a row starts again from the prior once, then from the
     # whole range
@@ -147,12 +146,12 @@ def test_brightness_learnt_from_settled_depths_narrows_a_new_particles_search():
     _settle(p, 50, centre, 1 / z, lit)
     for expected in (p.prior(lit), full):
         a, b = p.probes(Detections(centre, [3.0], track_ids=[50]))[50]
-        assert (a, b) == (p.tracks[50].lo, p.tracks[50].hi)  # settled
+        assert (a, b) == p.intervals()[50]  # settled
         for _ in range(DepthProbe.RESTART - 1):  # a single miss may be noise: the hole stays
             p.observe(Detections(centre, [3.0], scores=[lit], track_ids=[50]), {50: (a, b)}, np.empty(0))
-            assert (p.tracks[50].lo, p.tracks[50].hi) == (a, b)
+            assert p.intervals()[50] == (a, b)
         p.observe(Detections(centre, [3.0], scores=[lit], track_ids=[50]), {50: (a, b)}, np.empty(0))
-        assert (p.tracks[50].lo, p.tracks[50].hi) == expected
+        assert p.intervals()[50] == expected
         _settle(p, 50, centre, 1 / z, lit)
 
 
@@ -179,13 +178,13 @@ def test_a_settled_hole_that_misses_once_between_hits_stays():
     p = probe()
     centre = np.array([[400.0, 300.0]])
     _settle(p, 1, centre, 1 / 0.8, 100.0)
-    settled = (p.tracks[1].lo, p.tracks[1].hi)
+    settled = p.intervals()[1]
     for seen in (100.0, 20.0, 100.0, 20.0):  # miss, hit, miss, hit: never two misses in a row
         p.observe(Detections(centre, [3.0], scores=[seen], track_ids=[1]), {1: settled}, np.empty(0))
-        assert (p.tracks[1].lo, p.tracks[1].hi) == settled
+        assert p.intervals()[1] == settled
     p.observe(Detections(centre, [3.0], scores=[100.0], track_ids=[1]), {1: settled}, np.empty(0))
     p.observe(Detections(centre, [3.0], scores=[100.0], track_ids=[1]), {1: settled}, np.empty(0))
-    assert (p.tracks[1].lo, p.tracks[1].hi) != settled  # two in a row: searched again
+    assert p.intervals()[1] != settled  # two in a row: searched again
 
 
 def test_a_depth_is_learnt_only_once_its_settled_hole_has_held_the_particle_twice():
@@ -220,3 +219,99 @@ def test_the_priors_quantiles_are_numpys():
     for n in (1, 2, 3, 7, 40, 399, 400):
         values = rng.normal(size=n) * 3.0
         np.testing.assert_array_equal(_quantiles(values, (0.1, 0.9)), np.quantile(values, [0.1, 0.9]))
+
+
+def test_the_priors_median_is_numpys():
+    from antiscatter.probe import _median
+
+    rng = np.random.default_rng(8)
+    for n in (1, 2, 3, 8, 39):
+        values = rng.normal(size=n)
+        assert _median(values) == np.median(values)
+
+
+class _OneByOne:
+    """The probe's rules written track by track, in the detections' order -- what the vectorised
+    ``observe`` must equal, prior included (new and restarted tracks read it between the depths
+    learnt before them in the same exposure)."""
+
+    def __init__(self, p: DepthProbe):
+        self.p = p  # only for its prior (samples learnt here, fits asked here)
+        self.state: dict[int, list] = {}  # id -> [lo, hi, lit, held, missed, restarted]
+
+    def observe(self, detections, shown, coasting):
+        p, state = self.p, self.state
+        for tid, score in zip(detections.track_ids.tolist(), detections.scores.tolist()):
+            if tid < 0 or not np.isfinite(score):
+                continue
+            if tid not in state:
+                state[tid] = [*p.prior(score), 0.0, 0, 0, False]
+            t = state[tid]
+            probe = shown.get(tid)
+            if probe is None or t[2] <= 0:
+                t[2] = score if t[2] <= 0 else 0.7 * t[2] + 0.3 * score
+                continue
+            if score < (1 + p.dim_level) / 2 * t[2]:
+                t[3] = t[3] + 1 if probe == (t[0], t[1]) else 0
+                if t[3] == p.HELD:
+                    p._learn(t[2], t[0], t[1])
+                self._hit(t, probe)
+            else:
+                t[3] = 0
+                a, b = probe
+                if a <= t[0] + 1e-12 and b >= t[1] - 1e-12:
+                    t[4] += 1
+                    if t[4] >= p.RESTART:
+                        t[4] = 0
+                        t[0], t[1] = p.prior(t[2]) if not t[5] else (p.w_far, p.w_near)
+                        t[5] = True
+                elif a <= t[0] + 1e-12:
+                    t[0] = max(t[0], b)
+                elif b >= t[1] - 1e-12:
+                    t[1] = min(t[1], a)
+                t[2] = 0.7 * t[2] + 0.3 * score
+        for tid in coasting.tolist():
+            if tid in state and tid in shown:
+                self._hit(state[tid], shown[tid])
+
+    @staticmethod
+    def _hit(t, probe):
+        t[4] = 0
+        lo, hi = max(t[0], probe[0]), min(t[1], probe[1])
+        t[0], t[1] = (lo, hi) if lo < hi else probe
+
+
+def test_every_tracks_verdict_at_once_equals_the_rules_applied_one_track_at_a_time():
+    # 60 particles coming and going over 80 exposures, at random depths and brightnesses, some
+    # dimmed by their probes, some lit, some vanished under them, some missed by the detector
+    rng = np.random.default_rng(11)
+    fast, slow = probe(), _OneByOne(probe())
+    fast.MIN_PRIOR = slow.p.MIN_PRIOR = 2  # the prior soon in play, so its order matters
+    depth = 1 / rng.uniform(0.35, 2.8, 60)
+    lit = rng.uniform(20, 200, 60)
+    centres = rng.uniform([50, 50], [750, 550], (60, 2))
+    alive = np.zeros(60, bool)
+    shown = {}
+    for frame in range(80):
+        alive = np.where(rng.random(60) < 0.06, ~alive, alive)
+        ids = np.flatnonzero(alive)
+        seen = rng.random(len(ids)) > 0.1  # the detector misses one in ten
+        scores = []
+        for tid in ids[seen]:
+            a, b = shown.get(tid, (0.0, 0.0))
+            dimmed = a <= depth[tid] <= b and rng.random() > 0.05  # and a verdict is sometimes wrong
+            scores.append(lit[tid] * (fast.dim_level if dimmed else 1.0) * rng.uniform(0.9, 1.1))
+        order = rng.permutation(int(seen.sum()))
+        found = Detections(centres[ids[seen]][order], np.full(int(seen.sum()), 3.0),
+                           scores=np.array(scores)[order], track_ids=ids[seen][order])
+        coasting = ids[~seen]
+        fast.observe(found, shown, coasting)
+        slow.observe(found, shown, coasting)
+        fast.forget(ids)
+        slow.state = {t: s for t, s in slow.state.items() if t in set(ids.tolist())}
+        expected = {t: (s[0], s[1]) for t, s in slow.state.items()}
+        assert dict(fast.intervals()) == expected, frame
+        assert fast.prior_size() == slow.p.prior_size()
+        holes = Detections(centres[ids], np.full(len(ids), 3.0), track_ids=ids)
+        shown = dict(fast.probes(holes))
+    assert fast.prior_size() >= 5  # depths were learnt and new particles' priors came from them

@@ -27,8 +27,8 @@ the projector position of p moves along a straight line as w grows.
 from __future__ import annotations
 
 import math
-from collections import deque
-from dataclasses import dataclass, field
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
 from typing import Callable
 
 import cv2
@@ -37,17 +37,62 @@ import numpy as np
 from .detections import Detections
 from .pattern import blank_pattern, map_to_projector
 
-__all__ = ["DepthProbe"]
+__all__ = ["DepthProbe", "Intervals"]
+
+_LO, _HI, _LIT, _HELD, _MISSED, _RESTARTED = range(6)  # columns of DepthProbe's track state
 
 
-@dataclass
-class _Track:
-    lo: float  # inverse depth interval still holding the particle (1/m)
-    hi: float
-    lit: float = 0.0  # the particle's brightness when fully lit (detector score), 0 = unknown
-    held: int = 0  # exposures in a row its settled hole was seen to dim it
-    restarted: bool = False  # its search has started again once
-    missed: int = 0  # exposures in a row its settled hole failed to dim it
+class Intervals(Mapping):
+    """Inverse-depth intervals of tracks, as arrays: ``ids`` (N,) int64 and ``lo``, ``hi`` (N,)
+    float64; read as a mapping too (track id -> (lo, hi)).  What :meth:`DepthProbe.probes` and
+    :meth:`DepthProbe.intervals` return and what :meth:`DepthProbe.observe` and
+    :meth:`DepthProbe.render` take (a plain dict is converted)."""
+
+    __slots__ = ("ids", "lo", "hi", "_order")
+
+    def __init__(self, ids: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> None:
+        self.ids = np.asarray(ids, np.int64).reshape(-1)
+        self.lo = np.asarray(lo, np.float64).reshape(-1)
+        self.hi = np.asarray(hi, np.float64).reshape(-1)
+        self._order: np.ndarray | None = None
+
+    @classmethod
+    def of(cls, intervals: Mapping[int, tuple[float, float]]) -> "Intervals":
+        if isinstance(intervals, Intervals):
+            return intervals
+        ids = list(intervals)
+        spans = np.array([intervals[i] for i in ids], np.float64).reshape(-1, 2)
+        return cls(np.array(ids, np.int64), spans[:, 0], spans[:, 1])
+
+    def find(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(rows, found): the row of each of ``ids`` (valid where found)."""
+        ids = np.asarray(ids, np.int64)
+        if len(self.ids) == 0:
+            return np.zeros(len(ids), np.intp), np.zeros(len(ids), bool)
+        if self._order is None:
+            self._order = np.argsort(self.ids, kind="stable")
+        ordered = self.ids[self._order]
+        at = np.minimum(np.searchsorted(ordered, ids), len(ordered) - 1)
+        return self._order[at], ordered[at] == ids
+
+    def spans(self, ids: np.ndarray, lo: float, hi: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(lo, hi, given) for each of ``ids``: its interval, or (lo, hi) where it has none."""
+        rows, given = self.find(ids)
+        if len(self.ids) == 0:
+            return np.full(len(rows), lo), np.full(len(rows), hi), given
+        return np.where(given, self.lo[rows], lo), np.where(given, self.hi[rows], hi), given
+
+    def __getitem__(self, tid: int) -> tuple[float, float]:
+        rows, found = self.find(np.array([tid]))
+        if not found[0]:
+            raise KeyError(tid)
+        return float(self.lo[rows[0]]), float(self.hi[rows[0]])
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(self.ids.tolist())
+
+    def __len__(self) -> int:
+        return len(self.ids)
 
 
 @dataclass
@@ -93,7 +138,6 @@ class DepthProbe:
     settle_px: float = 12.0
     prior_samples: int = 400
     prior_coverage: float = 0.8
-    tracks: dict[int, _Track] = field(default_factory=dict)
 
     #: settled tracks needed before brightness narrows a new particle's search.  The searches of
     #: the first second of a dive are the costliest (whole-range segments: at 12 cm the twin's
@@ -142,12 +186,21 @@ class DepthProbe:
             raise ValueError(f"prior_samples: got {self.prior_samples}, allowed >= 0 (0 = no prior)")
         if not 0 < self.prior_coverage <= 1:
             raise ValueError(f"prior_coverage: got {self.prior_coverage}, allowed 0 < coverage <= 1")
-        self._samples: deque[tuple[float, float]] = deque(maxlen=self.prior_samples)  # (log brightness, log w)
+        # the settled tracks' (log brightness, log inverse depth), oldest first, at most prior_samples
+        self._x = np.empty(0, np.float64)
+        self._y = np.empty(0, np.float64)
         self._fit: tuple[float, float, float, float] | None = None  # slope, intercept, residual band
         self.w_far, self.w_near = 1.0 / self.far_m, 1.0 / self.near_m
         self._h_far = np.asarray(self.mapping_at(self.far_m), np.float64)
         self._h_near = np.asarray(self.mapping_at(self.near_m), np.float64)
         self._threshold = (1.0 + self.dim_level) / 2.0
+        # each known track's state, one row per track in ascending id order (columns: _LO ..
+        # _RESTARTED, counts and flags as floats, exact): its inverse-depth interval still holding
+        # the particle (lo, hi); its brightness when fully lit (detector score, 0 = unknown);
+        # exposures in a row its settled hole was seen to dim it (held) or failed to (missed);
+        # whether its search has started again once (restarted)
+        self._ids = np.empty(0, np.int64)
+        self._state = np.empty((0, 6), np.float64)
 
     # ----------------------------------------------------------------- geometry
     def span_px(self, centres: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -156,51 +209,84 @@ class DepthProbe:
         return np.hypot(*(step * (_t(hi, self) - _t(lo, self))[:, None]).T)
 
     # ------------------------------------------------------------------ updates
-    def observe(self, detections: Detections, shown: dict[int, tuple[float, float]],
+    def observe(self, detections: Detections, shown: Mapping[int, tuple[float, float]],
                 coasting: np.ndarray) -> None:
         """One exposure's verdicts.
 
         detections: this frame's detections with their ``track_ids`` (scores = brightness);
         shown: the probe interval each track's hole covered during this exposure;
         coasting: ids of confirmed tracks not detected this frame (dark: under their hole).
+
+        Every track's verdict at once; only what the prior is learnt from and asked for (a
+        settled depth learnt, a new track's or a restarted search's interval) is taken in the
+        detections' order, each prior from the depths learnt before it.
         """
-        tracks, isfinite = self.tracks, math.isfinite
-        for tid, score in zip(detections.track_ids.tolist(), detections.scores.tolist()):
-            if tid < 0 or not isfinite(score):  # no brightness from this detector: no verdict
-                continue
-            track = tracks.get(tid)
-            if track is None:
-                track = tracks[tid] = _Track(*self.prior(score))
-            probe = shown.get(tid)
-            if probe is None or track.lit <= 0:
-                track.lit = score if track.lit <= 0 else 0.7 * track.lit + 0.3 * score
-                continue
-            if score < self._threshold * track.lit:
-                settled = probe == (track.lo, track.hi)
-                track.held = track.held + 1 if settled else 0
-                if track.held == self.HELD:  # seen dimmed under its settled hole: its depth is known
-                    self._learn(track)
-                self._hit(track, probe)
-            else:
-                track.held = 0
-                self._miss(track, probe)
-                track.lit = 0.7 * track.lit + 0.3 * score
-        for tid in np.asarray(coasting).tolist():
-            track = self.tracks.get(tid)
-            probe = shown.get(tid)
-            if track is not None and probe is not None:
-                self._hit(track, probe)
+        ids, scores = detections.track_ids, detections.scores
+        use = (ids >= 0) & np.isfinite(scores)  # no track or no brightness from this detector: no verdict
+        if not use.all():
+            ids, scores = ids[use], scores[use]
+        rows, known = self._find(ids)
+        new = ~known
+        if new.any():
+            self._add(ids[new])
+            rows = self._find(ids)[0]
+        shown = Intervals.of(shown)
+        a, b, probed = shown.spans(ids, 0.0, 0.0)
+        lo, hi, lit, held, missed, restarted = self._state[rows].T
+        judged = probed & (lit > 0)  # a probe was on it and its lit brightness is known
+        dimmed = scores < self._threshold * lit
+        hit, miss = judged & dimmed, judged & ~dimmed
+        # dimmed: the particle is in the probed part, and a settled hole (the whole interval) holds it
+        held = np.where(hit & (a == lo) & (b == hi), held + 1, np.where(judged, 0.0, held))
+        learnt = hit & (held == self.HELD)  # seen dimmed under its settled hole: its depth is known
+        inner, outer = np.maximum(lo, a), np.minimum(hi, b)
+        overlap = inner < outer
+        # as bright as when lit: the particle is in the part not probed -- or, when the probe was
+        # the whole settled interval, the hole missed: once may be the verdict's noise (the hole
+        # stays), twice in a row and its search starts again
+        from_lo, to_hi = a <= lo + 1e-12, b >= hi - 1e-12
+        whole = miss & from_lo & to_hi
+        again = whole & (missed + 1 >= self.RESTART)
+        twice = again & (restarted > 0)  # the whole range; the first time, its brightness's prior (below)
+        lo_now = np.where(hit, np.where(overlap, inner, a),
+                          np.where(miss & from_lo & ~to_hi, np.maximum(lo, b), np.where(twice, self.w_far, lo)))
+        hi_now = np.where(hit, np.where(overlap, outer, b),
+                          np.where(miss & ~from_lo & to_hi, np.minimum(hi, a), np.where(twice, self.w_near, hi)))
+        lit_now = np.where(~judged & (lit <= 0), scores, np.where(hit, lit, 0.7 * lit + 0.3 * scores))
+        missed_now = np.where(hit | again, 0.0, np.where(whole, missed + 1, missed))
+        self._state[rows] = np.stack([lo_now, hi_now, lit_now, held, missed_now, np.maximum(restarted, again)], 1)
+        # the prior, in the detections' order: learnt depths, then new and restarted searches from it
+        asks = new | (again & ~twice)
+        if learnt.any() or asks.any():
+            wanted = np.where(new, scores, lit)  # a new track's brightness, a restarted one's when lit
+            for i in np.flatnonzero(learnt | asks).tolist():
+                if learnt[i]:
+                    self._learn(float(lit[i]), float(lo[i]), float(hi[i]))
+                else:
+                    self._state[rows[i], :2] = self.prior(float(wanted[i]))
+        # confirmed tracks not seen at all under their probe: vanished, so dimmed
+        coasting = np.asarray(coasting, np.int64).reshape(-1)
+        rows, known = self._find(coasting)
+        a, b, probed = shown.spans(coasting, 0.0, 0.0)
+        keep = known & probed
+        if keep.any():
+            rows, a, b = rows[keep], a[keep], b[keep]
+            lo, hi = np.maximum(self._state[rows, _LO], a), np.minimum(self._state[rows, _HI], b)
+            overlap = lo < hi
+            self._state[rows, _LO] = np.where(overlap, lo, a)
+            self._state[rows, _HI] = np.where(overlap, hi, b)
+            self._state[rows, _MISSED] = 0.0
 
     def prior(self, brightness: float) -> tuple[float, float]:
         """The inverse-depth interval a new particle of this brightness (lit) is searched over:
         what settled tracks of that brightness had (see ``prior_samples``), else near..far."""
-        if len(self._samples) < max(self.MIN_PRIOR, 1) or not brightness > 0:
+        if len(self._x) < max(self.MIN_PRIOR, 1) or not brightness > 0:
             return self.w_far, self.w_near
         if self._fit is None:
-            x, y = np.array(self._samples).T
+            x, y = self._x, self._y
             if len(x) < self.FIT_SLOPE:  # the inverse square's slope; only the level is learnt
                 slope = self.SLOPE
-                intercept = float(np.median(y - slope * x))
+                intercept = _median(y - slope * x)
             else:
                 slope, intercept = _line(x, y)
             tail = (1.0 - self.prior_coverage) / 2.0
@@ -217,62 +303,55 @@ class DepthProbe:
 
     def prior_size(self) -> int:
         """Settled depths the prior has learnt from (at most ``prior_samples``)."""
-        return len(self._samples)
+        return len(self._x)
 
-    def _learn(self, track: _Track) -> None:
+    def _learn(self, lit: float, lo: float, hi: float) -> None:
         """A settled track's (brightness, depth) for the prior."""
-        if track.lit > 0:  # none are kept with prior_samples 0
-            self._samples.append((math.log(track.lit), math.log((track.lo + track.hi) / 2)))
+        if lit > 0 and self.prior_samples > 0:
+            drop = max(len(self._x) + 1 - self.prior_samples, 0)  # the oldest beyond prior_samples
+            self._x = np.append(self._x[drop:], math.log(lit))
+            self._y = np.append(self._y[drop:], math.log((lo + hi) / 2))
             self._fit = None
 
-    def _hit(self, track: _Track, probe: tuple[float, float]) -> None:
-        track.missed = 0
-        lo, hi = max(track.lo, probe[0]), min(track.hi, probe[1])
-        track.lo, track.hi = (lo, hi) if lo < hi else probe
+    def _find(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(rows, known): each of ``ids``' row in the track state (valid where known)."""
+        if len(self._ids) == 0:
+            return np.zeros(len(ids), np.intp), np.zeros(len(ids), bool)
+        at = np.minimum(np.searchsorted(self._ids, ids), len(self._ids) - 1)
+        return at, self._ids[at] == ids
 
-    def _miss(self, track: _Track, probe: tuple[float, float]) -> None:
-        a, b = probe
-        if a <= track.lo + 1e-12 and b >= track.hi - 1e-12:  # the settled hole missed
-            track.missed += 1
-            if track.missed < self.RESTART:  # once may be the verdict's noise: the hole stays
-                return
-            track.missed = 0  # its search starts again:
-            # from its brightness's prior the first time, from the whole range after that
-            track.lo, track.hi = self.prior(track.lit) if not track.restarted else (self.w_far, self.w_near)
-            track.restarted = True
-        elif a <= track.lo + 1e-12:
-            track.lo = max(track.lo, b)
-        elif b >= track.hi - 1e-12:
-            track.hi = min(track.hi, a)
+    def _add(self, ids: np.ndarray) -> None:
+        """Rows for new tracks: the whole range, brightness unknown (observe sets their prior)."""
+        fresh = np.zeros((len(ids), 6))
+        fresh[:, _LO], fresh[:, _HI] = self.w_far, self.w_near
+        merged = np.concatenate([self._ids, ids])
+        order = np.argsort(merged, kind="stable")
+        self._ids = merged[order]
+        self._state = np.concatenate([self._state, fresh])[order]
 
-    def probes(self, holes: Detections) -> dict[int, tuple[float, float]]:
+    def probes(self, holes: Detections) -> Intervals:
         """The interval each hole covers next: the lower half of its track's interval while it
         spans more than ``settle_px``, else all of it; new particles get the whole range."""
-        out: dict[int, tuple[float, float]] = {}
-        if len(holes) == 0:
-            return out
         ids = holes.track_ids
-        unknown = _Track(self.w_far, self.w_near)
-        state = np.array([(t.lo, t.hi, t.lit) for t in (self.tracks.get(i, unknown) for i in ids.tolist())])
-        lo, hi, lit = state.T
-        halve = (lit > 0) & (self.span_px(holes.centres, lo, hi) > self.settle_px)
-        mid = (lo + hi) / 2
-        for tid, a, b, m, h in zip(ids.tolist(), lo.tolist(), hi.tolist(), mid.tolist(), halve.tolist()):
-            out[tid] = (a, m) if h else (a, b)
-        return out
+        rows, known = self._find(ids)
+        state = self._state[rows] if len(self._ids) else np.zeros((len(ids), 6))
+        lo = np.where(known, state[:, _LO], self.w_far)
+        hi = np.where(known, state[:, _HI], self.w_near)
+        halve = known & (state[:, _LIT] > 0) & (self.span_px(holes.centres, lo, hi) > self.settle_px)
+        return Intervals(ids, lo, np.where(halve, (lo + hi) / 2, hi))
 
-    def intervals(self) -> dict[int, tuple[float, float]]:
+    def intervals(self) -> Intervals:
         """Each known track's whole remaining interval (inverse depths), where its particle may be."""
-        return {tid: (t.lo, t.hi) for tid, t in self.tracks.items()}
+        return Intervals(self._ids.copy(), self._state[:, _LO].copy(), self._state[:, _HI].copy())
 
     def forget(self, alive: np.ndarray) -> None:
         """Drop the state of tracks that no longer exist."""
-        keep = set(np.asarray(alive).tolist())
-        for tid in [t for t in self.tracks if t not in keep]:
-            del self.tracks[tid]
+        keep = np.isin(self._ids, np.asarray(alive, np.int64))
+        if not keep.all():
+            self._ids, self._state = self._ids[keep], self._state[keep]
 
     # ---------------------------------------------------------------- rendering
-    def render(self, holes: Detections, probes: dict[int, tuple[float, float]], *, size: tuple[int, int],
+    def render(self, holes: Detections, probes: Mapping[int, tuple[float, float]], *, size: tuple[int, int],
                margin: float = 0.0, out: np.ndarray | None = None, hole: int = 0) -> np.ndarray:
         """The pattern: each hole drawn as a thick segment over its probe interval (uint8, 255 = light).
 
@@ -289,8 +368,9 @@ class DepthProbe:
         out = blank_pattern(size, out)
         if len(holes) == 0:
             return out
-        ids = holes.track_ids.tolist()
-        lo, hi = np.array([probes.get(t, (self.w_far, self.w_near)) for t in ids], np.float64).T
+        ids = holes.track_ids
+        probes = Intervals.of(probes)
+        lo, hi, given = probes.spans(ids, self.w_far, self.w_near)
         far, radii = map_to_projector(holes, self._h_far)
         near = _apply(self._h_near, holes.centres)
         a = far + _t(lo, self)[:, None] * (near - far)
@@ -298,8 +378,10 @@ class DepthProbe:
         thickness = np.maximum(1, np.rint(2 * (radii + margin))).astype(int)
         # a probe is a part of its track's interval that the next exposure judges; a whole interval
         # (settled, or kept dark between pulses) only has to cover the particle, caps and all
-        probed = np.array([t in probes and t in self.tracks and probes[t] != (self.tracks[t].lo, self.tracks[t].hi)
-                           for t in ids], bool)
+        rows, known = self._find(ids)
+        probed = given & known
+        if probed.any():
+            probed &= (lo != self._state[rows, _LO]) | (hi != self._state[rows, _HI])
         if probed.any():
             length = np.hypot(*(b - a).T)
             inset = np.where(probed, np.minimum(thickness / 2.0, length / 2.0), 0.0)
@@ -309,6 +391,13 @@ class DepthProbe:
                                          (b * 16).round().astype(np.int64).tolist(), thickness.tolist()):
             cv2.line(out, (ax, ay), (bx, by), hole, t, cv2.LINE_8, 4)
         return out
+
+
+def _median(values: np.ndarray) -> float:
+    """np.median's value (the middle order statistic, or the mean of the two), by one partition."""
+    n = len(values)
+    middle = np.partition(values, [(n - 1) // 2, n // 2])
+    return float(middle[n // 2]) if n % 2 else float((middle[n // 2 - 1] + middle[n // 2]) / 2)
 
 
 def _quantiles(values: np.ndarray, qs: tuple[float, ...]) -> np.ndarray:
