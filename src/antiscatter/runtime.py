@@ -17,7 +17,7 @@ import time
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, TextIO
+from typing import Any, Callable, Mapping, TextIO
 
 import cv2
 import numpy as np
@@ -283,9 +283,9 @@ class _Record:
     pattern: Any  # the holes (Detections) until rendered, then the (H, W) uint8 pattern
     t_processed: int  # when rendering began
     t_pattern: int  # when rendering ended
-    probes: dict = field(default_factory=dict)  # depth probing: each track's interval in this pattern
+    probes: Mapping = field(default_factory=dict)  # depth probing: each track's interval in this pattern
     hole_ids: Any = None  # the track ids of this pattern's holes
-    intervals: dict | None = None  # depth probing with pulse: each track's whole remaining interval
+    intervals: Mapping | None = None  # depth probing with pulse: each track's whole remaining interval
     exposure: Any = None  # pulse with probing: the pattern for the next exposure (probe halves lifted)
     learned: threading.Event | None = None  # the detector's deferred stages are done (None: none pending)
 
@@ -327,7 +327,7 @@ class _Pipeline:
             rate = source.fps or config.run.fps or FOLDER_FPS
             self.frame_interval = 1.0 / rate
         self.probe = None
-        self.shown_probes: dict = {}  # each track's interval in the pattern the next exposure sees
+        self.shown_probes: Mapping = {}  # each track's interval in the pattern the next exposure sees
         self.unlit_ids: np.ndarray | None = None  # tracks whose holes the next exposure is taken under
         self.last_capture: float | None = None  # seconds, the last frame's capture time
         self.frame_period: float | None = None  # seconds, running mean of the capture interval

@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Mapping
 
 import cv2
 import numpy as np
@@ -71,8 +71,8 @@ class _Probing:
     """A queued pattern of the ``probe`` mapping: tracks frozen at one update, and each one's interval."""
 
     prediction: Prediction
-    probes: dict  # shown while the camera exposes
-    between: dict  # shown between exposures: the probes (dim), each whole interval (pulse)
+    probes: Mapping  # shown while the camera exposes
+    between: Mapping  # shown between exposures: the probes (dim), each whole interval (pulse)
 
 __all__ = ["TwinGeometry", "TwinRun", "simulate_loop", "default_runs", "backscatter_weight", "STRATEGIES", "MAPPINGS"]
 
@@ -205,7 +205,7 @@ def backscatter_weight(scene: Any, geometry: "TwinGeometry", particles: dict[str
 
 def _holes_pattern(holes: Detections, run: TwinRun, *, size: tuple[int, int], mapping: np.ndarray,
                    buffer: np.ndarray, segments: DepthProbe | None = None,
-                   probes: dict | None = None) -> np.ndarray:
+                   probes: Mapping | None = None) -> np.ndarray:
     """The projector pattern for ``holes`` (camera pixels) under the run's mapping; float 0..1.
 
     segments: draw each hole along its particle's epipolar segment -- over ``probes``' interval
@@ -243,7 +243,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
         segments = DepthProbe(calibration.mapping_at if calibration is not None else geometry.plane_mapping,
                               near_m=geometry.near_m, far_m=geometry.far_m, dim_level=run.dim_level)
     probe = segments if run.mapping == "probe" else None
-    shown_probes: dict = {}  # the intervals the pattern on during the last exposure gave each track
+    shown_probes: Mapping = {}  # the intervals the pattern on during the last exposure gave each track
     shown_ids = None  # the tracks whose holes were on during the last exposure
     pw, ph = geometry.projector_size
     if run.mapping == "identity":
