@@ -330,6 +330,7 @@ def test_scoreboard_end_to_end_on_a_tiny_catalogue(tmp_path, cli):
         for kind in ("bgr", "y"):
             assert f"| {size} | {kind} | seed |" in latency and f"| {size} | {kind} | contrast |" in latency
     assert "## Tracking" in text and "| tinybubbles |" in text.split("## Tracking")[1]
+    assert "| pred. err +1 (px) | pred. err +2 (px) | pred. err +3 (px) |" in text
     assert "## Closed loop" not in text
     bad = cli("evaluate", "--catalogue", "--catalogue-file", str(catalogue), "--data", str(tmp_path / "data"),
               "--report", str(report), "--bench-frames", "0", "--twin-seeds", "0")
