@@ -159,11 +159,38 @@ def test_curves_plot(tmp_path):
     import cv2
     from antiscatter.twin import plot_curves
     curves = plot_curves(str(tmp_path / "t.png"), geometry=TwinGeometry(camera_size=(200, 150)), preset="bubbles",
-                         frames=3, latencies_ms=(0.0, 20.0), baselines_m=(0.0, 0.12))
+                         frames=3, latencies_ms=(0.0, 20.0), baselines_m=(0.0, 0.12), currents_m_s=(0.0, 0.5))
     assert set(curves["by_latency"]) == {"seed, identity", "none", "coast+predict", "dim+predict", "pulse+predict",
                                        "flash+predict", "probe+pulse+predict"}
     assert all(len(v) == 2 for v in curves["by_baseline"].values())
-    assert cv2.imread(str(tmp_path / "t.png")) is not None
+    assert all(len(v) == 2 for v in curves["by_speed"].values())
+    # a current across the view speeds the particles up in the image
+    slow, fast = curves["speed_px_s"]
+    assert fast > slow + 50
+    assert cv2.imread(str(tmp_path / "t.png")).shape[1] > 1500  # three panels side by side
+
+
+def test_a_current_replaces_the_presets_and_carries_every_particle():
+    from antiscatter.errors import UsageError
+    from antiscatter.simulate import make_scene
+    from antiscatter.twin import particle_speed
+
+    geometry = TwinGeometry()
+    still = make_scene("mixed", rng=np.random.default_rng(3), size=(800, 600), current=(0.0, 0.0))
+    drift = make_scene("mixed", rng=np.random.default_rng(3), size=(800, 600), current=(0.3, 0.0))
+    a, b = still.particles(), drift.particles()
+    np.testing.assert_array_equal(a["X"], b["X"])  # the same scene...
+    still.step()
+    drift.step()
+    a, b = still.particles(), drift.particles()
+    both, ia, ib = np.intersect1d(a["ids"], b["ids"], return_indices=True)  # not replaced after leaving the view
+    assert len(both) > 0.5 * len(a["ids"])
+    dx = b["X"][ib] - a["X"][ia]
+    # ...each particle 0.3 m/s further across (but the odd one born again elsewhere meanwhile)
+    assert np.mean(np.isclose(dx, 0.3 / still.fps, rtol=0, atol=1e-9)) > 0.98
+    assert particle_speed(drift, geometry) > particle_speed(still, geometry)
+    with pytest.raises(UsageError, match="realistic presets"):
+        make_scene("seed", rng=np.random.default_rng(0), current=(0.1, 0.0))
 
 
 @pytest.mark.parametrize("exposure_s, first_dark_frame", [(0.003, 0), (0.004, 1)])

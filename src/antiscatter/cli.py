@@ -267,7 +267,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "(default 0.1, as run)")
     tw.add_argument("--projector-size", default="1280x800", metavar="WxH", help="projector size (default 1280x800)")
     tw.add_argument("--plot", metavar="FILE.png", help="also draw backscatter removed and scene light kept "
-                    "against latency and against baseline")
+                    "against latency, against baseline and against particle speed (a current across the view)")
     tw.add_argument("--calibration", metavar="FILE", help="use this calibration for the calibrated runs (default: "
                     "the twin's exact geometry); its error against the true geometry is reported")
     tw.add_argument("--json", action="store_true", help="print {\"runs\": [...]}")

@@ -411,13 +411,29 @@ def default_runs(baseline_m: float) -> list[TwinRun]:
     return runs
 
 
+def particle_speed(scene: Any, geometry: TwinGeometry) -> float:
+    """Median speed (camera pixels a second) of the scene's particles in view, from their motion now."""
+    fps = geometry.camera_hz
+    now, later = scene.particles(), scene.particles(ahead_s=1.0 / fps)
+    f = geometry.camera_focal
+    du = (later["X"] / later["Z"] - now["X"] / now["Z"]) * f * fps
+    dv = (later["Y"] / later["Z"] - now["Y"] / now["Z"]) * f * fps
+    u = now["X"] / now["Z"] * f + geometry.camera_size[0] / 2
+    v = now["Y"] / now["Z"] * f + geometry.camera_size[1] / 2
+    seen = (now["Z"] > 0) & (u >= 0) & (u < geometry.camera_size[0]) & (v >= 0) & (v < geometry.camera_size[1])
+    return float(np.median(np.hypot(du, dv)[seen])) if seen.any() else 0.0
+
+
 def plot_curves(path: str, *, geometry: TwinGeometry, preset: str = "mixed", frames: int = 60, seed: int = 1,
                 latencies_ms: tuple[float, ...] = (0.0, 5.0, 10.0, 20.0, 40.0),
                 baselines_m: tuple[float, ...] = (0.0, 0.03, 0.06, 0.12, 0.2),
+                currents_m_s: tuple[float, ...] = (0.0, 0.1, 0.2, 0.4, 0.8),
                 dim_level: float = 0.1, flash_level: float = 0.25) -> dict[str, Any]:
-    """Backscatter removed and scene light kept against latency (at the geometry's baseline) and against
-    baseline (at 5 ms), for the default detector with the calibrated mapping (and depth probing) and,
-    beside them, the report's ``seed`` detector with the identity mapping; written as a PNG."""
+    """Backscatter removed and scene light kept against latency (at the geometry's baseline), against
+    baseline (at 5 ms) and against particle speed (a water current across the view, m/s, replacing the
+    preset's; at the geometry's baseline and 5 ms), for the default detector with the calibrated mapping
+    (and depth probing) and, beside them, the report's ``seed`` detector with the identity mapping;
+    written as a PNG.  ``speed_px_s``: each current's median particle speed in the image."""
     from dataclasses import replace as _replace
 
     from .bench import _pyplot
@@ -429,17 +445,26 @@ def plot_curves(path: str, *, geometry: TwinGeometry, preset: str = "mixed", fra
             "flash+predict": TwinRun("contrast", "calibrated", "flash", True),
             "probe+pulse+predict": TwinRun("contrast", "probe", "pulse", True)}
     runs = {name: _replace(run, dim_level=dim_level, flash_level=flash_level) for name, run in runs.items()}
-    curves: dict[str, Any] = {"latency_ms": list(latencies_ms), "baseline_m": list(baselines_m), "by_latency": {},
-                              "by_baseline": {}}
+    def drifting(current: float) -> Any:  # the same scene (same seed) in another current
+        return make_scene(preset, rng=np.random.default_rng(seed), size=geometry.camera_size, current=(current, 0.0))
+
+    speeds = [particle_speed(drifting(c), geometry) for c in currents_m_s]
+    curves: dict[str, Any] = {"latency_ms": list(latencies_ms), "baseline_m": list(baselines_m),
+                              "current_m_s": list(currents_m_s), "speed_px_s": speeds, "by_latency": {},
+                              "by_baseline": {}, "by_speed": {}}
     for name, run in runs.items():
         curves["by_latency"][name] = [simulate_loop(run, geometry=geometry, preset=preset, frames=frames, seed=seed,
                                                     latency_ms=lat) for lat in latencies_ms]
         curves["by_baseline"][name] = [simulate_loop(run, geometry=_replace(geometry, baseline_m=b), preset=preset,
                                                      frames=frames, seed=seed, latency_ms=5.0) for b in baselines_m]
+        curves["by_speed"][name] = [simulate_loop(run, geometry=geometry, scene=drifting(c), frames=frames,
+                                                  latency_ms=5.0) for c in currents_m_s]
     plt = _pyplot()
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
+    fig, axes = plt.subplots(1, 3, figsize=(18, 4.5))
     for ax, key, xs, label in ((axes[0], "by_latency", latencies_ms, "processing latency (ms)"),
-                               (axes[1], "by_baseline", baselines_m, "camera-projector baseline (m)")):
+                               (axes[1], "by_baseline", baselines_m, "camera-projector baseline (m)"),
+                               (axes[2], "by_speed", currents_m_s, "current across the view (m/s) and the median "
+                                                                   "particle speed in the image (px/s)")):
         for name, results in curves[key].items():
             line, = ax.plot(xs, [r["backscatter_removed"] for r in results], "o-", label=f"{name}: removed")
             ax.plot(xs, [r["scene_light_kept"] for r in results], "s--", color=line.get_color(),
@@ -449,13 +474,15 @@ def plot_curves(path: str, *, geometry: TwinGeometry, preset: str = "mixed", fra
         ax.grid(alpha=0.3)
     axes[0].set_title(f"against latency (baseline {geometry.baseline_m:g} m)")
     axes[1].set_title("against baseline (latency 5 ms)")
+    axes[2].set_title(f"against particle speed (baseline {geometry.baseline_m:g} m, latency 5 ms)")
+    axes[2].set_xticks(list(currents_m_s), [f"{c:g}\n{s:.0f}" for c, s in zip(currents_m_s, speeds)])
     handles, labels = axes[1].get_legend_handles_labels()
     fig.legend(handles, labels, loc="lower center", ncol=7, fontsize=7)
     fig.suptitle(f"antiscatter twin: {preset}, {frames} frames; default detector, calibrated mapping (seed: identity)")
     fig.tight_layout(rect=(0, 0.1, 1, 1))
     fig.savefig(path, dpi=100)
     plt.close(fig)
-    for key in ("by_latency", "by_baseline"):
+    for key in ("by_latency", "by_baseline", "by_speed"):
         for results in curves[key].values():
             for r in results:
                 r.pop("series", None)

@@ -44,10 +44,13 @@ PRESETS: dict[str, _Preset] = {}
 
 
 def make_scene(preset: str, *, rng: np.random.Generator,
-               size: tuple[int, int] | None = None, background: str | None = None) -> Scene:
+               size: tuple[int, int] | None = None, background: str | None = None,
+               current: tuple[float, float] | None = None) -> Scene:
     """Build the preset's scene at ``size`` (width, height; the preset's own by default).
 
     background: a path to an image or video replacing a realistic preset's background.
+    current: (x, y) water current in m/s replacing a realistic preset's: every particle drifts with
+        it across the view, on top of its own motion.
     """
     from ..errors import UsageError
 
@@ -55,15 +58,20 @@ def make_scene(preset: str, *, rng: np.random.Generator,
         entry = PRESETS[preset]
     except KeyError:
         raise UsageError(f"unknown preset {preset!r}; allowed: {', '.join(sorted(PRESETS))}") from None
+    if background is None and current is None:
+        return entry.build(size=size or entry.default_size, rng=rng)
+    if preset == "seed":
+        raise UsageError("--background and the current apply to the realistic presets, not to 'seed' "
+                         "(white on black)")
+    from dataclasses import replace
+    config = _REALISTIC[preset][0]
     if background is not None:
-        if preset == "seed":
-            raise UsageError("--background applies to the realistic presets, not to 'seed' (white on black)")
-        from dataclasses import replace
         from .background import load_background
         load_background(background, (8, 8))  # fail early with a clear message
-        config = replace(_REALISTIC[preset][0], background=str(background))
-        return _RealisticScene(config, size=size or entry.default_size, rng=rng)
-    return entry.build(size=size or entry.default_size, rng=rng)
+        config = replace(config, background=str(background))
+    if current is not None:
+        config = replace(config, current=(float(current[0]), float(current[1])))
+    return _RealisticScene(config, size=size or entry.default_size, rng=rng)
 
 
 from . import report as _report  # noqa: E402
