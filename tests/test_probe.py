@@ -315,3 +315,17 @@ def test_every_tracks_verdict_at_once_equals_the_rules_applied_one_track_at_a_ti
         holes = Detections(centres[ids], np.full(len(ids), 3.0), track_ids=ids)
         shown = dict(fast.probes(holes))
     assert fast.prior_size() >= 5  # depths were learnt and new particles' priors came from them
+
+
+def test_the_probe_benchmark_script_runs_and_reports_every_call():
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "scripts" / "bench_probe.py"
+    out = subprocess.run([sys.executable, str(script), "--particles", "20", "--frames", "15"], capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    for call in ("observe", "probes", "render (each of 2)", "frame"):
+        assert f"{call}: median" in out.stdout
+    assert "settled depths learnt for the prior: " in out.stdout
