@@ -213,7 +213,8 @@ class DepthProbe:
                 coasting: np.ndarray) -> None:
         """One exposure's verdicts.
 
-        detections: this frame's detections with their ``track_ids`` (scores = brightness);
+        detections: this frame's detections with their ``track_ids`` (scores = brightness; a track
+            has one detection at most, as the tracker assigns them);
         shown: the probe interval each track's hole covered during this exposure;
         coasting: ids of confirmed tracks not detected this frame (dark: under their hole).
 
@@ -322,6 +323,7 @@ class DepthProbe:
 
     def _add(self, ids: np.ndarray) -> None:
         """Rows for new tracks: the whole range, brightness unknown (observe sets their prior)."""
+        ids = np.unique(ids)
         fresh = np.zeros((len(ids), 6))
         fresh[:, _LO], fresh[:, _HI] = self.w_far, self.w_near
         merged = np.concatenate([self._ids, ids])
