@@ -43,8 +43,8 @@ def main() -> None:
     shown = probe.probes(Detections(start, np.full(n, 3.0), track_ids=ids))
     for f in range(args.frames):
         centres = (start + velocity * f / 60) % (w, h)
-        a, b = np.array([shown.get(i, (0.0, 0.0)) for i in ids.tolist()]).reshape(-1, 2).T
-        under = (a <= 1 / depth) & (1 / depth <= b)
+        a, b, given = shown.spans(ids, 0.0, 0.0)
+        under = given & (a <= 1 / depth) & (1 / depth <= b)
         found = Detections(centres, np.full(n, 3.0), scores=lit * np.where(under, 0.1, 1.0), track_ids=ids)
         holes = Detections(centres, np.full(n, 3.0), track_ids=ids)
         t0 = time.perf_counter_ns()

@@ -485,7 +485,7 @@ class BackgroundModel:
         frame = cv2.morphologyEx(half[sub], cv2.MORPH_OPEN, _K3)
         # 0: column profile -> x shift; 1: row profile -> y shift
         shifts = [_profile_shift(profiles[axis], cv2.reduce(frame, axis, cv2.REDUCE_AVG, dtype=cv2.CV_32F).ravel(),
-                                 MAX_FOLLOW // 2, passed=True) for axis in (0, 1)]
+                                 MAX_FOLLOW // 2) for axis in (0, 1)]
         if (shifts[0] is None) != (shifts[1] is None):
             # a pan along one axis changes the other profile as ground enters and leaves the view:
             # that one is taken again over the ground both views share
@@ -1504,7 +1504,7 @@ def _overlap_shift(reference: np.ndarray, frame: np.ndarray, axis: int, other: i
     seen = slice(max(0, other), n - max(0, -other))
     ref, cur = (reference[keep], frame[seen]) if axis == 0 else (reference[:, keep], frame[:, seen])
     profiles = [cv2.reduce(v, axis, cv2.REDUCE_AVG, dtype=cv2.CV_32F).ravel() for v in (ref, cur)]
-    return _profile_shift(*profiles, MAX_FOLLOW // 2, OVERLAP_SCORE)
+    return _profile_shift(_highpass(profiles[0]), profiles[1], MAX_FOLLOW // 2, OVERLAP_SCORE)
 
 
 def _highpass(profile: np.ndarray) -> np.ndarray | None:
@@ -1515,23 +1515,22 @@ def _highpass(profile: np.ndarray) -> np.ndarray | None:
     return None if cv2.meanStdDev(row)[1][0, 0] < PLAIN else row.ravel()
 
 
-def _profile_shift(reference: np.ndarray | None, profile: np.ndarray, max_shift: int, min_score: float = 0.8, *,
-                   passed: bool = False) -> float | None:
+def _profile_shift(reference: np.ndarray | None, profile: np.ndarray, max_shift: int,
+                   min_score: float = 0.8) -> float | None:
     """Shift (samples, sub-sample) that best lays ``reference`` onto ``profile`` (1-D float32, same
     length), within +-max_shift; None when their high-passed correlation there is below 0.8 (no
-    texture to go by, or the view changed more than it moved).  ``passed``: ``reference`` is
-    already :func:`_highpass`'s (None: plain), as :meth:`BackgroundModel.follow` keeps it."""
+    texture to go by, or the view changed more than it moved).  ``reference`` is already
+    :func:`_highpass`'s (None: a plain view), as :meth:`BackgroundModel.follow` keeps it."""
     n = len(profile)
     if n < 4 * max_shift:
         return None
-    r = reference if passed else _highpass(reference)
-    p = None if r is None else _highpass(profile)
+    p = None if reference is None else _highpass(profile)
     if p is None:
         return None
     # normalised correlation of the profile's middle with every window of the reference (OpenCV, one
     # call); the window starting at j stands for the shift max_shift - j: reversed, index i <-> i - max
     middle = p[max_shift:n - max_shift].reshape(1, -1)
-    scores = cv2.matchTemplate(r.reshape(1, -1), middle, cv2.TM_CCOEFF_NORMED).ravel()[::-1]
+    scores = cv2.matchTemplate(reference.reshape(1, -1), middle, cv2.TM_CCOEFF_NORMED).ravel()[::-1]
     best = int(np.argmax(scores))
     if scores[best] < min_score:
         return None
