@@ -132,6 +132,11 @@ class TwinGeometry:
     def projector_focal(self) -> float:
         return self.throw_ratio * self.projector_size[0]
 
+    def to_camera(self, X: np.ndarray, Y: np.ndarray, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Camera pixel (u, v) of camera-frame points (metres)."""
+        fc = self.camera_focal
+        return fc * X / Z + (self.camera_size[0] - 1) / 2, fc * Y / Z + (self.camera_size[1] - 1) / 2
+
     def to_projector(self, X: np.ndarray, Y: np.ndarray, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Projector pixel (u, v) of camera-frame points (metres)."""
         fp = self.projector_focal
@@ -302,8 +307,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
         p = scene.particles()
         u, v = geometry.to_projector(p["X"], p["Y"], p["Z"])
         rp = geometry.projector_focal * p["R"] / p["Z"]
-        cam_u = p["X"] / p["Z"] * geometry.camera_focal + (geometry.camera_size[0] - 1) / 2
-        cam_v = p["Y"] / p["Z"] * geometry.camera_focal + (geometry.camera_size[1] - 1) / 2
+        cam_u, cam_v = geometry.to_camera(p["X"], p["Y"], p["Z"])
         visible = (cam_u >= 0) & (cam_u < geometry.camera_size[0]) & (cam_v >= 0) & (cam_v < geometry.camera_size[1])
         in_field = (u >= 0) & (u < pw) & (v >= 0) & (v < ph) & (p["Z"] > 0)
         # only what the projector -- the vehicle's lamp -- can light counts
@@ -415,13 +419,10 @@ def particle_speed(scene: Any, geometry: TwinGeometry) -> float:
     """Median speed (camera pixels a second) of the scene's particles in view, from their motion now."""
     fps = geometry.camera_hz
     now, later = scene.particles(), scene.particles(ahead_s=1.0 / fps)
-    f = geometry.camera_focal
-    du = (later["X"] / later["Z"] - now["X"] / now["Z"]) * f * fps
-    dv = (later["Y"] / later["Z"] - now["Y"] / now["Z"]) * f * fps
-    u = now["X"] / now["Z"] * f + geometry.camera_size[0] / 2
-    v = now["Y"] / now["Z"] * f + geometry.camera_size[1] / 2
+    u, v = geometry.to_camera(now["X"], now["Y"], now["Z"])
+    u1, v1 = geometry.to_camera(later["X"], later["Y"], later["Z"])
     seen = (now["Z"] > 0) & (u >= 0) & (u < geometry.camera_size[0]) & (v >= 0) & (v < geometry.camera_size[1])
-    return float(np.median(np.hypot(du, dv)[seen])) if seen.any() else 0.0
+    return float(np.median(np.hypot(u1 - u, v1 - v)[seen]) * fps) if seen.any() else 0.0
 
 
 def plot_curves(path: str, *, geometry: TwinGeometry, preset: str = "mixed", frames: int = 60, seed: int = 1,
