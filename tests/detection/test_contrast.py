@@ -597,11 +597,10 @@ def test_the_background_follows_vertical_and_diagonal_pans(move):
         assert (np.hypot(x - px, y - (py + 29)) < 3).any()
 
 
-def _turning_view(turn_deg, zoom, pan, frames=50, lamp=False):
+def _turning_view(turn_deg, zoom, pan, frames=50):
     """Views of fractal ground that turn ``turn_deg`` degrees, scale by 1 + ``zoom`` and pan ``pan``
-    px a frame, with noise and 20 particles drifting down (x, y of each).  ``lamp``: the ground is
-    lit by the vehicle's lamp, so as the view grows by s (the ground s times closer) it is lit s^2
-    brighter; False: by daylight, the same whatever the distance."""
+    px a frame, with noise and 20 particles drifting down (x, y of each).  The ground is lit by
+    daylight: as bright whatever its distance."""
     rng = np.random.default_rng(1)
     ground = (40 + 50 * fractal_noise((1400, 1400), rng, octaves=4, base=4)).astype(np.float32)
     particles = [(40 + 37 * k % 560, 40 + (53 * k) % 400) for k in range(20)]
@@ -609,8 +608,6 @@ def _turning_view(turn_deg, zoom, pan, frames=50, lamp=False):
         m = cv2.getRotationMatrix2D((700.0 + pan * i, 700.0), turn_deg * i, (1 + zoom) ** i)
         m[:, 2] += np.array([320 - 700 - pan * i, 240 - 700])  # that ground point at the view's centre
         view = cv2.warpAffine(ground, m, (640, 480), flags=cv2.INTER_LINEAR)
-        if lamp:
-            view *= (1 + zoom) ** (2 * i)
         frame = np.clip(view + rng.normal(0, 2.0, view.shape), 0, 255).astype(np.uint8)
         for x, y in particles:
             cv2.circle(frame, (x, (y + i) % 470), 2, 200, -1)

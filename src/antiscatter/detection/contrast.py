@@ -335,8 +335,8 @@ class BackgroundModel:
         self._turn_still = 0  # looks in a row that found it still
         self._turn_moves: list[np.ndarray] = []  # while it moves: the corners' moves of the last looks
         self._look_due = False  # a routine look left for after the detections (defer_looks)
-        # while following: the frame (at half the working resolution) the background was last moved
-        # to fit, and the pans follow() made since
+        # the frame (at half the working resolution) a look last moved the background to fit, and
+        # the pans follow() made since
         self._look_ref: np.ndarray | None = None
         self._panned = np.zeros(2)
         self._growths: list[float] = []  # the last moves' growth of the view's area (BRIGHTEN)
@@ -560,8 +560,9 @@ class BackgroundModel:
         from frame 14 none was made (F1 0.50, 500 false alarms a frame at the end); frame to
         frame, unopened, the growth came out 0.07 % too large at 0.3 m/s and twice its size at
         0.1 m/s (particles), opened within 0.03 %.  A move smaller than ``TURN_STEP`` waits
-        for the next look, measured over more frames then.  And as the vehicle closes on the ground
-        its lamp lights it more (``BRIGHTEN``).  No move in any catalogued scene or in the twin (their camera holds still).
+        for the next look, measured over more frames then.  And as the vehicle closes on the
+        ground its lamp lights it more (``BRIGHTEN``).  No move in any catalogued scene or in the
+        twin (their camera holds still).
         Cost: 0.1-0.15 ms a frame on average in a still view at 800x600 (0.05 median; a look,
         0.25-0.6 ms, is mostly the flow), 0.15-0.2 at 1456x1088; every frame while the view moves.
         Returns True when it moved the background."""
@@ -598,32 +599,29 @@ class BackgroundModel:
             self._turn_grid = np.column_stack([(xs.ravel() + 0.5) * size[0] / nx, (ys.ravel() + 0.5) * size[1] / ny]
                                               ).astype(np.float32).reshape(-1, 1, 2)
         small = cv2.resize(half, size, interpolation=cv2.INTER_AREA)
-        small_base = cv2.resize(self.base, size, interpolation=cv2.INTER_AREA)
         total = cv2.sumElems(small)[0]
-        gain = total / max(cv2.sumElems(small_base)[0], 1.0)  # an exposure change not yet followed
-        ref, self._look_ref = self._look_ref, small
-        panned, self._panned = self._panned, np.zeros(2)
+        ref = self._look_ref
         chained = self._turn_moving and ref is not None and ref.shape == small.shape
-        if chained:  # following: from the frame the background was last moved to fit
+        if chained:  # following: from the frame the background was last moved to fit, particles out
             source = cv2.convertScaleAbs(ref, alpha=total / max(cv2.sumElems(ref)[0], 1.0))
             source, target = (cv2.morphologyEx(image, cv2.MORPH_OPEN, self.FLOW_OPEN) for image in (source, small))
         else:
+            small_base = cv2.resize(self.base, size, interpolation=cv2.INTER_AREA)
+            gain = total / max(cv2.sumElems(small_base)[0], 1.0)  # an exposure change not yet followed
             source, target = cv2.convertScaleAbs(small_base, alpha=gain), small
         points = self._turn_grid
         moved, status, _ = cv2.calcOpticalFlowPyrLK(source, target, points, None, winSize=(11, 11), maxLevel=2,
                                                     criteria=_LK_STOP, minEigThreshold=1e-5)
         ok = status.ravel() == 1
         if ok.sum() < self.TURN_INLIERS:
-            self._keep_ref(ref, panned, chained)
             return False
         # in working pixels: the half-resolution pixel centres map as u = 2 x + 0.5
         m, inliers = cv2.estimateAffinePartial2D(2 * points[ok] + 0.5, 2 * moved[ok] + 0.5, method=cv2.RANSAC,
                                                  ransacReprojThreshold=1.0, maxIters=100)
         if m is None or int(inliers.sum()) < self.TURN_INLIERS:
-            self._keep_ref(ref, panned, chained)
             return False
         if chained:  # the pans made since are in the background already
-            m[:, 2] -= m[:, :2] @ panned
+            m[:, 2] -= m[:, :2] @ self._panned
         corners = np.array([[0.0, 0.0], [w - 1.0, 0.0], [0.0, h - 1.0], [w - 1.0, h - 1.0]])
         shift = corners @ m[:, :2].T + m[:, 2] - corners  # where the move takes each corner
         far = float(np.abs(shift).sum(axis=1).max())
@@ -632,17 +630,15 @@ class BackgroundModel:
                 self._turn_still += 1
                 self._turn_moving = self._turn_still < self.TURN_STILL_LOOKS
                 self._drifted(None)
-                self._keep_ref(ref, panned, chained)
                 return False
             self._turn_still = 0
-            if chained and far < self.TURN_STEP:
+            if chained and far < self.TURN_STEP:  # measured again over more frames at the next look
                 self._drifted(None)
-                self._keep_ref(ref, panned, chained)
                 return False
             if not chained and not self._fits_better(half, m, gain, 0.0):
                 self._drifted(None)
                 return False  # a poor estimate this frame: the view still counts as moving
-            self._move_background(m, half)
+            self._move_to(m, half, small)
             self._drifted(shift)
             return True
         last, self._turn_last = self._turn_last, None
@@ -652,15 +648,16 @@ class BackgroundModel:
         self._turn_wait = 0  # look again next frame
         if last is None or float((last * shift).sum()) < 0.25 * float((last * last).sum()):
             return False  # the first look that saw it, or one that saw the view move another way
-        self._move_background(m, half)
+        self._move_to(m, half, small)
         self._turn_moving, self._turn_still, self._turn_moves = True, 0, []
         return True
 
-    def _keep_ref(self, ref: np.ndarray | None, panned: np.ndarray, chained: bool) -> None:
-        """A look that moved nothing while following: the background still fits the older frame."""
-        if chained:
-            self._look_ref = ref
-            self._panned = self._panned + panned
+    def _move_to(self, m: np.ndarray, half: np.ndarray, small: np.ndarray) -> None:
+        """A look's move: the background moved by ``m`` now fits this frame (``small``: at half
+        the working resolution), which the next look's flow starts from."""
+        self._move_background(m, half)
+        self._look_ref = small
+        self._panned = np.zeros(2)
 
     def _drifted(self, shift: np.ndarray | None) -> None:
         """While following a turning view: this look's move of the frame's corners (None: none made).
@@ -757,8 +754,8 @@ class BackgroundModel:
     #: opening of both frames before the flow while following (particles out, ground texture kept)
     FLOW_OPEN = np.ones((3, 3), np.uint8)
     #: a move that scales the view by s scales the background's brightness by s^2 (the median over
-    #: this many moves; 0 = never): the lamp rides
-    #: with the camera, and ground that grows by s came s times closer.  :meth:`match_gain` cannot
+    #: this many moves; 0 = never): the lamp rides with the camera, and ground that grows by s came
+    #: s times closer.  :meth:`match_gain` cannot
     #: follow the brightness across moves (it compares a frame with the last, whose pixels saw other
     #: ground), and the learning alone lagged: the mixed scene closing on the seabed (F1 of the
     #: catalogue's counting, frames 20-59) at 0.1 / 0.3 / 0.6 m/s gave 0.897 / 0.828 / 0.506 with the
