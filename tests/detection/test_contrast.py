@@ -552,6 +552,31 @@ def test_a_single_frame_takes_texture_larger_than_particles_as_background():
         ContrastParams(texture=2)
 
 
+def test_a_single_frame_tells_faint_specks_from_bright_lines_and_edges():
+    # a sunlit view: blotchy ground crossed by thin bright lines (a fin's stripes, the rims of rocks)
+    # and lit from one side (a bright edge), with faint specks of snow on the plain parts.  Specks
+    # outshine every ring around them; a line or an edge does not, however bright.
+    size = (384, 384)
+    rng = np.random.default_rng(5)
+    ground = 50 + 40 * fractal_noise(size, rng, octaves=3, base=3)
+    ground[:, 300:] += 60  # a lit rock face: an edge, then bright plain
+    for i in range(6):  # thin bright lines, straight and slanted
+        x0 = 20 + 45 * i
+        cv2.line(ground, (x0, 10), (x0 + 30 * (i % 3), 370), 50 + 10 * i, 1, cv2.LINE_AA)
+    specks = [(40.0 + 55 * i, 40.0 + 50 * (i % 6) + 7, 1.5, 35) for i in range(6)]
+    frame = ground + rng.normal(0, 2.0, ground.shape)
+    for x, y, r, contrast in specks:
+        disc = np.zeros(ground.shape, np.float32)
+        cv2.circle(disc, (round(x * 16), round(y * 16)), round(r * 16), 1.0, -1, cv2.LINE_AA, 4)
+        frame += contrast * cv2.GaussianBlur(disc, (0, 0), 0.7)
+    frame = cv2.cvtColor(np.clip(np.rint(frame), 0, 255).astype(np.uint8), cv2.COLOR_GRAY2BGR)
+    found = {texture: detect(frame, "contrast", texture=texture) for texture in (0, 28)}
+    for x, y, _, _ in specks:
+        assert np.hypot(*(found[28].centres - (x, y)).T).min() <= 1.0, (x, y)
+    false = {t: len(f) - len(specks) for t, f in found.items()}
+    assert false[28] <= 3 and false[0] >= false[28] + 20, false
+
+
 def _radius_at(found, centre):
     """The radius of the detection nearest ``centre`` (a lone noise spike elsewhere does not count)."""
     return float(found.radii[np.argmin(np.hypot(*(found.centres - centre).T))])
