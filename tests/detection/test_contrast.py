@@ -537,8 +537,9 @@ def test_a_big_bright_blob_crossing_a_still_view_does_not_move_the_background(mo
 
 
 def test_a_single_frame_takes_texture_larger_than_particles_as_background():
-    # the first frame (or a still) has nothing learnt: the median over `texture` pixels keeps the
-    # seabed's larger bright patches out of the detections while the particles stay found
+    # the first frame (or a still) has nothing learnt: `texture` (the median over that many pixels,
+    # the rings a particle must outshine) keeps the seabed's larger bright patches out of the
+    # detections while the particles stay found
     size = (800, 600)
     frame = scene(size, DISCS, background="texture", seed=3)
     counts = {}
