@@ -125,8 +125,8 @@ class ContrastParams:
         fewer false alarms to unlearn); not kept, for the frames after the first to stay as they
         were (the dense cloud's tracking moved from IDF1 0.789 to 0.781 on the catalogue's seed
         but from 0.682-0.696 to 0.700-0.709 on seeds 2-4 over 60 frames with the first frame's
-        detections alone changed: the tracking loop amplifies any change, either way).  The rings and the median's window scale with
-        the width, as ``cell`` does: at 1456x1088 unscaled they took the seabed's faint 30-40 px
+        detections alone changed: the tracking loop amplifies any change, either way).  The rings
+        and the median's window scale with the width, as ``cell`` does: at 1456x1088 unscaled they took the seabed's faint 30-40 px
         pebbles for particles (fullres first frame 0.751, the run 0.962 -> 0.952).  Costs about
         1.3 ms on such frames at 800x600 (four dilations by rings, a median at half resolution,
         one more labelling).  Rings up to 12 only: MSRB 0.411 / 0.446 but the saturated
@@ -328,7 +328,7 @@ NOISE_WINDOW = 13
 
 
 def prominence_level(half: np.ndarray, rings: tuple[int, ...], *, cell: int,
-                     window: int = 13) -> tuple[np.ndarray, np.ndarray]:
+                     window: int = NOISE_WINDOW) -> tuple[np.ndarray, np.ndarray]:
     """(level uint8 (h, w), noise float32 per coarse cell) of a working-resolution frame, from that
     frame alone.
 
@@ -490,9 +490,7 @@ class BackgroundModel:
             self._next = 0
             if self.rings:  # a single frame: its particles must stand out (the learning starts as before)
                 level, self.noise = prominence_level(half, self.rings, cell=self.cell, window=self.noise_window)
-                limit = cv2.resize(np.maximum(self.k * self.noise, np.float32(self.min_contrast)), (w, h),
-                                   interpolation=cv2.INTER_LINEAR)
-                limit = cv2.convertScaleAbs(limit, beta=-0.4999)  # floor, as _update_limit
+                limit = self._limit_map(self.noise, half.shape)
                 self.prominent = threshold_mask(half, level, limit)[0]
                 return self.base, limit
         return self.base, self.limit
@@ -561,13 +559,18 @@ class BackgroundModel:
         """noise (3x3-cell median of the dark-side spread, so a few cells of particles
         do not inflate it) and the per-pixel limit max(k * noise, min_contrast) as
         uint8, rounded down (``excess > limit`` on integers is ``excess > k * noise``)."""
-        h, w = shape
         self.noise = cv2.medianBlur(self._deficit, 3) * np.float32(2.5066)  # s = sqrt(2 pi) E[max(-x, 0)]
         self._typical_noise = float(np.median(self.noise))
         self._cap = max(self.NOISE_CAP * self._typical_noise, 2.0)
-        limit = cv2.resize(np.maximum(self.k * self.noise, np.float32(self.min_contrast)), (w, h),
+        self.limit = self._limit_map(self.noise, shape)
+
+    def _limit_map(self, noise: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+        """uint8 (h, w): max(k * noise, min_contrast) from the coarse ``noise`` map, rounded down
+        (``excess > limit`` on integers is ``excess > k * noise``), saturated at 255."""
+        h, w = shape
+        limit = cv2.resize(np.maximum(self.k * noise, np.float32(self.min_contrast)), (w, h),
                            interpolation=cv2.INTER_LINEAR)
-        self.limit = cv2.convertScaleAbs(limit, beta=-0.4999)  # floor, saturated at 255
+        return cv2.convertScaleAbs(limit, beta=-0.4999)
 
     def follow(self, half: np.ndarray) -> tuple[int, int]:
         """Move the learnt background with the view: the shift between it and this frame, from their
@@ -1535,19 +1538,20 @@ def build_contrast(params: ContrastParams) -> Detector:
     """The ``contrast`` chain as timed stages (one background model per detector instance)."""
     model = BackgroundModel(cell=params.cell, memory=params.memory, k=params.k, min_contrast=params.min_contrast,
                             follow=params.follow, defer_looks=True)
-    state: dict[str, Any] = {"factor": 2, "width": 800}
+    state: dict[str, Any] = {"factor": 2, "width": 0}  # the scales below are for frames of this width
     persist_kernel = _disc(params.persist_radius) if params.persist_radius else None
 
     def stage_downsample(image: np.ndarray) -> np.ndarray:
-        factor = working_factor(image.shape[1], params.factor)
-        # cells cover the same share of the view at any width above 800 px
-        cell = params.cell * max(1.0, image.shape[1] / 800.0)
-        state["factor"], state["width"] = factor, image.shape[1]
-        model.cell = max(int(round(cell / factor)), 2)
-        model.window = max(int(round(params.texture / factor)), 3) if params.texture else 0
-        wide = max(1.0, image.shape[1] / 800.0)  # rings cover the same share of the view above 800 px
-        model.rings = tuple(sorted({max(int(round(r * wide / factor)), 2) for r in _rings(params.texture)}))
-        model.noise_window = int(round(NOISE_WINDOW * wide)) | 1
+        width = image.shape[1]
+        if width != state["width"]:
+            factor = working_factor(width, params.factor)
+            wide = max(1.0, width / 800.0)  # cells and rings cover the same share of the view above 800 px
+            state["factor"], state["width"] = factor, width
+            model.cell = max(int(round(params.cell * wide / factor)), 2)
+            model.window = max(int(round(params.texture / factor)), 3) if params.texture else 0
+            model.rings = tuple(sorted({max(int(round(r * wide / factor)), 2) for r in _rings(params.texture)}))
+            model.noise_window = int(round(NOISE_WINDOW * wide)) | 1
+        factor = state["factor"]
         grey = image if image.ndim == 2 else to_channel(image, params.channel)
         state["grey"] = grey
         return downsample(grey, factor=factor, channel=params.channel, point=params.point)
