@@ -204,6 +204,29 @@ def test_pixels_with_a_wrong_background_do_not_take_their_cells_noise(cap, monke
         assert cells.max() > 3 * clean
 
 
+def test_a_thick_cloud_in_the_warm_up_leaves_neither_its_light_nor_its_noise_in_the_background():
+    # 150 bright specks a frame, each somewhere else: learnt at full height in the warm-up, a
+    # quarter of each stayed in the background, and the noise measured on its dark side rose
+    # with it (1.6x the sensor's here, and the limit with it: the dense cloud's faint particles)
+    from antiscatter.detection.contrast import BackgroundModel, threshold_mask
+
+    def warmed_up(count):
+        rng = np.random.default_rng(3)
+        model = BackgroundModel(cell=8, memory=20)
+        for _ in range(BackgroundModel.WARMUP):
+            light = np.zeros((150, 200), np.float32)
+            for x, y, c in zip(rng.integers(0, 200, count), rng.integers(0, 150, count), rng.uniform(30, 100, count)):
+                cv2.circle(light, (int(x), int(y)), 1, float(c), -1)
+            half = np.clip(np.rint(30 + light + rng.normal(0, 1.0, light.shape)), 0, 255).astype(np.uint8)
+            base, limit = model.estimate(half)
+            model.learn(half, threshold_mask(half, base, limit)[0])
+        return float(np.median(model.noise)), float(np.percentile(model.background, 90))
+
+    (clean_noise, clean_top), (noise, top) = warmed_up(0), warmed_up(150)
+    assert noise < 1.25 * clean_noise
+    assert top < clean_top + 0.4
+
+
 def test_on_textured_ground_the_frames_after_the_first_replace_its_spatial_background():
     # the first frame's background comes from that frame alone and misses the texture: the noise
     # measured against it is the texture's.  The frames after it are the evidence (with the spatial
@@ -705,9 +728,11 @@ def test_a_view_closing_on_the_seabed_stays_followed():
     # the vehicle closing on the seabed 2.5 m away at 0.1 m/s, particles in the water: the view
     # grows 0.07 % a frame and each frame's estimate of that is noisy (particles on the points);
     # the view must still count as moving when one estimate is turned down (it stopped following
-    # after a few such frames: 245 detections a frame matched no particle, 38 now)
+    # after a few such frames: 245 detections a frame matched no particle, 38 now); and it is
+    # followed early (the first look's move turned down, the next came 6 frames later: 100-214
+    # false alarms a frame until frame 20; now it looks again at once, and every frame in the warm-up)
     false = _false_alarms_from_a_moving_vehicle((0.0, 0.0, 0.1))
-    assert np.mean(false[20:]) < 80, false
+    assert np.mean(false[14:]) < 15, false
 
 
 @pytest.mark.parametrize("speed", [0.3, 0.6])
