@@ -11,22 +11,18 @@ intervals dark between exposures, the probes lifted during the exposure), as
 
 from __future__ import annotations
 
-import argparse
 import time
 
 import numpy as np
 
-from antiscatter.bench import machine_description
+from antiscatter.bench import machine_description, particle_bench_args
 from antiscatter.detections import Detections
 from antiscatter.probe import DepthProbe
 from antiscatter.twin import TwinGeometry
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--particles", type=int, default=300)
-    parser.add_argument("--frames", type=int, default=300)
-    args = parser.parse_args()
+    args = particle_bench_args(__doc__)
     rng = np.random.default_rng(0)
     geometry = TwinGeometry(baseline_m=0.12)
     n = args.particles

@@ -9,22 +9,18 @@ tracker would pay per frame).
 
 from __future__ import annotations
 
-import argparse
 import time
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from antiscatter.bench import machine_description
+from antiscatter.bench import machine_description, particle_bench_args
 from antiscatter.detections import Detections
 from antiscatter.tracking import Tracker
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--particles", type=int, default=300)
-    parser.add_argument("--frames", type=int, default=300)
-    args = parser.parse_args()
+    args = particle_bench_args(__doc__)
     rng = np.random.default_rng(0)
     n = args.particles
     start = rng.uniform(0, 800, (n, 2))

@@ -11,6 +11,7 @@ memory floor.
 
 from __future__ import annotations
 
+import argparse
 import os
 import platform
 import time
@@ -24,9 +25,29 @@ from .detection import DETECTORS, make_detector
 from .runtime import time_stages
 from .simulate import make_scene
 
-__all__ = ["BenchResult", "bench", "format_bench", "machine_description", "bench_modes", "format_modes"]
+__all__ = ["BenchResult", "bench", "format_bench", "machine_description", "bench_modes", "format_modes",
+           "particle_bench_args"]
 
 DEFAULT_SIZES = ((800, 600, "mixed"), (1456, 1088, "fullres"))
+
+
+def _at_least_one(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"got {text!r}, allowed an integer >= 1")
+    return value
+
+
+def particle_bench_args(description: str | None, *, particles: int = 300, frames: int = 300) -> argparse.Namespace:
+    """``--particles`` and ``--frames`` (each an integer >= 1; else argparse's error, exit 2) of the
+    scripts that time one part of the chain for N particles over a number of frames."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--particles", type=_at_least_one, default=particles)
+    parser.add_argument("--frames", type=_at_least_one, default=frames)
+    return parser.parse_args()
 
 
 def machine_description() -> str:

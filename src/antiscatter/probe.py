@@ -68,12 +68,11 @@ class Intervals(Mapping):
         """(rows, found): the row of each of ``ids`` (valid where found)."""
         ids = np.asarray(ids, np.int64)
         if len(self.ids) == 0:
-            return np.zeros(len(ids), np.intp), np.zeros(len(ids), bool)
+            return _rows_in(self.ids, ids)
         if self._order is None:
             self._order = np.argsort(self.ids, kind="stable")
-        ordered = self.ids[self._order]
-        at = np.minimum(np.searchsorted(ordered, ids), len(ordered) - 1)
-        return self._order[at], ordered[at] == ids
+        at, found = _rows_in(self.ids[self._order], ids)
+        return self._order[at], found
 
     def spans(self, ids: np.ndarray, lo: float, hi: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(lo, hi, given) for each of ``ids``: its interval, or (lo, hi) where it has none."""
@@ -316,10 +315,7 @@ class DepthProbe:
 
     def _find(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(rows, known): each of ``ids``' row in the track state (valid where known)."""
-        if len(self._ids) == 0:
-            return np.zeros(len(ids), np.intp), np.zeros(len(ids), bool)
-        at = np.minimum(np.searchsorted(self._ids, ids), len(self._ids) - 1)
-        return at, self._ids[at] == ids
+        return _rows_in(self._ids, ids)
 
     def _add(self, ids: np.ndarray) -> None:
         """Rows for new tracks: the whole range, brightness unknown (observe sets their prior)."""
@@ -393,6 +389,14 @@ class DepthProbe:
                                          (b * 16).round().astype(np.int64).tolist(), thickness.tolist()):
             cv2.line(out, (ax, ay), (bx, by), hole, t, cv2.LINE_8, 4)
         return out
+
+
+def _rows_in(ordered: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(at, found): where each of ``ids`` is in the ascending ``ordered`` (valid where found)."""
+    if len(ordered) == 0:
+        return np.zeros(len(ids), np.intp), np.zeros(len(ids), bool)
+    at = np.minimum(np.searchsorted(ordered, ids), len(ordered) - 1)
+    return at, ordered[at] == ids
 
 
 def _median(values: np.ndarray) -> float:

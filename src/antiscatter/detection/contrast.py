@@ -431,7 +431,6 @@ class BackgroundModel:
         self.background: np.ndarray | None = None
         self.base: np.ndarray | None = None
         self.limit: np.ndarray | None = None
-        self._reach: np.ndarray | None = None  # float32: LEARN_REACH times the limit
         self.noise: np.ndarray | None = None
         self._deficit: np.ndarray | None = None  # mean of max(base - frame, 0) per coarse cell
         self._cap: float | None = None  # largest deficit a pixel adds to it (NOISE_CAP)
@@ -586,7 +585,6 @@ class BackgroundModel:
         self._typical_noise = float(np.median(self.noise))
         self._cap = max(self.NOISE_CAP * self._typical_noise, 2.0)
         self.limit = self._limit_map(self.noise, shape)
-        self._reach = self.limit.astype(np.float32) * np.float32(self.LEARN_REACH)
 
     def _limit_map(self, noise: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
         """uint8 (h, w): max(k * noise, min_contrast) from the coarse ``noise`` map, rounded down
@@ -1165,7 +1163,7 @@ class BackgroundModel:
             self._previous[r0:r1] = frame
         sample = frame
         if capped:  # particles only add light: what lies far above the background is not it
-            sample = np.minimum(frame, background + self._reach[r0:r1])
+            sample = np.minimum(frame, background + self.limit[r0:r1] * np.float32(self.LEARN_REACH))
         cv2.accumulateWeighted(sample, background, rate * under, mask=live)
         cv2.accumulateWeighted(sample, background, fresh * (1 - under), mask=cv2.bitwise_not(particles))
         cv2.convertScaleAbs(background, dst=self.base[r0:r1])

@@ -1,0 +1,25 @@
+"""The benchmark scripts that time one part of the chain for N particles."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
+
+
+def test_the_tracker_benchmark_script_runs_and_reports_its_medians():
+    out = subprocess.run([sys.executable, str(SCRIPTS / "bench_tracker.py"), "--particles", "20", "--frames", "15"],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert "Tracker.update: median" in out.stdout and "dense Hungarian alone (20x20): median" in out.stdout
+
+
+@pytest.mark.parametrize("script", ["bench_tracker.py", "bench_probe.py"])
+@pytest.mark.parametrize("args", [["--particles", "0"], ["--frames", "-3"], ["--frames", "many"]])
+def test_the_benchmark_scripts_turn_down_counts_below_one(script, args):
+    out = subprocess.run([sys.executable, str(SCRIPTS / script), *args], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2
+    assert "allowed an integer >= 1" in out.stderr and "Traceback" not in out.stderr
+    assert out.stdout == ""
