@@ -459,6 +459,37 @@ def test_depth_probe_draws_each_unknown_particle_over_its_epipolar_segment(tmp_p
     assert bad.code == 2 and "probe needs light.strategy dim" in bad.err
 
 
+@pytest.mark.parametrize("strategy, exposed", [("dim", "{}.png"), ("pulse", "flash-{}.png")])
+def test_depth_probe_judges_each_verdict_by_the_pattern_the_exposure_was_taken_under(tmp_path, cli, monkeypatch,
+                                                                                   strategy, exposed):
+    from antiscatter.probe import DepthProbe
+
+    calibration = tmp_path / "cal.json"
+    assert cli("calibrate", str(calibration), "--twin", "--size", "160x120").code == 0
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i in range(4):
+        cv2.imwrite(str(frames / f"{i}.png"), draw_discs((160, 120), [(100.0, 60.0, 3.0), (40.0, 30.0, 3.0)]))
+    seen = []
+    real = DepthProbe.observe
+
+    def observe(self, detections, shown, coasting, **kw):
+        exposure = kw.get("exposure")
+        seen.append(None if exposure is None else exposure.copy())
+        return real(self, detections, shown, coasting, **kw)
+
+    monkeypatch.setattr(DepthProbe, "observe", observe)
+    result = cli("run", str(frames), "--strategy", strategy, "--dim-level", "0.2", "--depth", "probe",
+                 "--calibration", str(calibration), "--output", f"files:{tmp_path / 'pat'}")
+    assert result.code == 0, result.err
+    assert len(seen) == 4 and seen[0] is None  # the first frame was taken under the plain lamp
+    for k in range(1, 4):  # frame k was exposed under what frame k - 1 put out for the capture
+        written = cv2.imread(str(tmp_path / "pat" / exposed.format(k if strategy == "pulse" else k - 1)),
+                             cv2.IMREAD_UNCHANGED)
+        assert np.array_equal(seen[k], written), k
+        assert (seen[k] == 51).any()  # holes at the dim level: the probes
+
+
 def test_depth_probe_with_pulse_keeps_the_whole_interval_dark_and_probes_half_for_the_capture(tmp_path, cli):
     from antiscatter.calibration import load_calibration
 

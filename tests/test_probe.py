@@ -1,5 +1,6 @@
 """Depth by bisection along the epipolar line, judged by what the camera sees next."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -53,6 +54,73 @@ def test_a_particle_is_under_the_probe_when_most_of_it_is(covered, under):
     assert (p.intervals()[2] == (a, b)) is under  # under: the probe's half; not: the other half
     if not under:
         assert p.intervals()[2] == (b, p.w_near)
+
+
+def _crossed(p, centre, probes, near=None):
+    """The exposure's light (uint8): the probes drawn at the dim level, and -- when ``near`` is given
+    -- a neighbour's probe (dark at the dim level too) along this track's epipolar line from 0.35 m
+    to ``near`` m: a particle just beside this one, searching its own near part."""
+    holes = Detections(centre, [3.0], track_ids=list(probes))
+    light = p.render(holes, probes, size=GEOMETRY.projector_size, hole=int(round(p.dim_level * 255)))
+    if near is not None:
+        ends = [p.mapping_at(d) @ [*centre[0], 1.0] for d in (0.35, near)]
+        a, b = ((int(round(u / w)), int(round(v / w))) for u, v, w in ends)
+        cv2.line(light, a, b, int(round(p.dim_level * 255)), 8)
+    return light
+
+
+@pytest.mark.parametrize("vanished", [False, True])
+def test_a_particle_dimmed_by_a_neighbours_hole_keeps_that_depth_in_its_interval(vanished):
+    # the particle is near (0.4 m), out of its first probe (the far half: 3 m .. 0.55 m), but a
+    # neighbour's probe lies along its line from 0.35 to 0.5 m: dimmed, it could be in either place
+    centre = np.array([[400.0, 300.0]])
+    lit, true_w = 100.0, 1 / 0.4
+    for crossed in (False, True):
+        p = probe()
+        p.observe(Detections(centre, [3.0], scores=[lit], track_ids=[5]), {}, np.empty(0))
+        probes = p.probes(Detections(centre, [3.0], track_ids=[5]))
+        a, b = probes[5]
+        assert not a <= true_w <= b
+        light = _crossed(p, centre, probes, 0.5 if crossed else None)
+        if vanished:  # not found at all: a confirmed track coasting at its predicted centre
+            p.observe(Detections.empty(), probes, np.array([5]), exposure=light, coasting_centres=centre)
+        else:
+            p.observe(Detections(centre, [3.0], scores=[lit * p.dim_level], track_ids=[5]), probes, np.empty(0),
+                      exposure=light)
+        lo, hi = p.intervals()[5]
+        if crossed:  # both places kept, no more: the search goes on over both
+            assert lo == a and 1 / 0.4 <= hi < p.w_near
+        else:  # nothing else was dark along its line: its own probe held it
+            assert (lo, hi) == (a, b)
+    # the light as a float (the twin's), and the verdict without it: its own probe alone
+    p = probe()
+    p.observe(Detections(centre, [3.0], scores=[lit], track_ids=[5]), {}, np.empty(0))
+    probes = p.probes(Detections(centre, [3.0], track_ids=[5]))
+    light = _crossed(p, centre, probes, 0.5).astype(np.float32) / 255
+    dimmed = Detections(centre, [3.0], scores=[lit * p.dim_level], track_ids=[5])
+    p.observe(dimmed, probes, np.empty(0), exposure=light)
+    assert p.intervals()[5][1] >= true_w
+    p = probe()
+    p.observe(Detections(centre, [3.0], scores=[lit], track_ids=[5]), {}, np.empty(0))
+    p.observe(dimmed, probes, np.empty(0))
+    assert p.intervals()[5] == probes[5]
+
+
+def test_a_neighbours_hole_over_a_small_part_of_the_line_leaves_the_own_probes_verdict():
+    # the own probe darkened half the interval; a neighbour's hole a few samples of the rest: the
+    # particle is far likelier in its probe (SURE), which stays its interval
+    p = probe()
+    centre = np.array([[400.0, 300.0]])
+    p.observe(Detections(centre, [3.0], scores=[100.0], track_ids=[5]), {}, np.empty(0))
+    probes = p.probes(Detections(centre, [3.0], track_ids=[5]))
+    light = _crossed(p, centre, probes)
+    lo, hi = p.intervals()[5]
+    ends = [p.mapping_at(1 / w) @ [400.0, 300.0, 1.0] for w in (hi - 0.35, hi - 0.15)]  # 3 of 48 samples
+    a, b = ((int(round(u / s)), int(round(v / s))) for u, v, s in ends)
+    cv2.line(light, a, b, 0, 8)
+    p.observe(Detections(centre, [3.0], scores=[100.0 * p.dim_level], track_ids=[5]), probes, np.empty(0),
+              exposure=light)
+    assert p.intervals()[5] == probes[5]
 
 
 def test_the_segment_spans_the_disparity_between_near_and_far():

@@ -209,7 +209,8 @@ class DepthProbe:
 
     # ------------------------------------------------------------------ updates
     def observe(self, detections: Detections, shown: Mapping[int, tuple[float, float]],
-                coasting: np.ndarray) -> None:
+                coasting: np.ndarray, *, exposure: np.ndarray | None = None,
+                coasting_centres: np.ndarray | None = None) -> None:
         """One exposure's verdicts.
 
         detections: this frame's detections with their ``track_ids`` (scores = brightness; a track
@@ -241,6 +242,12 @@ class DepthProbe:
         learnt = hit & (held == self.HELD)  # seen dimmed under its settled hole: its depth is known
         inner, outer = np.maximum(lo, a), np.minimum(hi, b)
         overlap = inner < outer
+        # dimmed: in the probed part of its interval (the probe itself when they do not overlap) --
+        # or wherever else along its line the exposure was dark (another track's hole)
+        dim_lo, dim_hi = np.where(overlap, inner, a), np.where(overlap, outer, b)
+        if exposure is not None and hit.any():
+            centres = detections.centres if use.all() else detections.centres[use]
+            dim_lo, dim_hi = self._widen(exposure, centres, lo, hi, hit, dim_lo, dim_hi)
         # as bright as when lit: the particle is in the part not probed -- or, when the probe was
         # the whole settled interval, the hole missed: once may be the verdict's noise (the hole
         # stays), twice in a row and its search starts again
@@ -248,9 +255,9 @@ class DepthProbe:
         whole = miss & from_lo & to_hi
         again = whole & (missed + 1 >= self.RESTART)
         twice = again & (restarted > 0)  # the whole range; the first time, its brightness's prior (below)
-        lo_now = np.where(hit, np.where(overlap, inner, a),
+        lo_now = np.where(hit, dim_lo,
                           np.where(miss & from_lo & ~to_hi, np.maximum(lo, b), np.where(twice, self.w_far, lo)))
-        hi_now = np.where(hit, np.where(overlap, outer, b),
+        hi_now = np.where(hit, dim_hi,
                           np.where(miss & ~from_lo & to_hi, np.minimum(hi, a), np.where(twice, self.w_near, hi)))
         lit_now = np.where(~judged & (lit <= 0), scores, np.where(hit, lit, 0.7 * lit + 0.3 * scores))
         missed_now = np.where(hit | again, 0.0, np.where(whole, missed + 1, missed))
@@ -271,11 +278,68 @@ class DepthProbe:
         keep = known & probed
         if keep.any():
             rows, a, b = rows[keep], a[keep], b[keep]
-            lo, hi = np.maximum(self._state[rows, _LO], a), np.minimum(self._state[rows, _HI], b)
+            was_lo, was_hi = self._state[rows, _LO], self._state[rows, _HI]
+            lo, hi = np.maximum(was_lo, a), np.minimum(was_hi, b)
             overlap = lo < hi
-            self._state[rows, _LO] = np.where(overlap, lo, a)
-            self._state[rows, _HI] = np.where(overlap, hi, b)
+            lo, hi = np.where(overlap, lo, a), np.where(overlap, hi, b)
+            if exposure is not None and coasting_centres is not None:
+                centres = np.asarray(coasting_centres, np.float64).reshape(-1, 2)[keep]
+                lo, hi = self._widen(exposure, centres, was_lo, was_hi, np.ones(len(rows), bool), lo, hi)
+            self._state[rows, _LO] = lo
+            self._state[rows, _HI] = hi
             self._state[rows, _MISSED] = 0.0
+
+    #: points along each interval at which the exposure's light is read (:meth:`_widen`)
+    SAMPLES = 48
+    #: a dimmed particle is placed in the part of its interval its own probe darkened only while it
+    #: is at least this likely to be there, its depths along the line taken as equally likely (the
+    #: part's share of the interval's dark points); below, the hull of them all (:meth:`_widen`).
+    #: Twin, 12 cm, pulse, prediction, 60 frames, scene seeds 25-72: 0.7 / 0.8 / 0.9 / 1 (any dark
+    #: point elsewhere) removed 0.770 / 0.772 / 0.778 / 0.777 keeping 0.895 / 0.894 / 0.892 /
+    #: 0.889; judged by the own probe alone 0.750 / 0.896.
+    SURE = 0.8
+
+    def _widen(self, exposure: np.ndarray, centres: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+               dimmed: np.ndarray, inner: np.ndarray, outer: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(inner, outer): the intervals the ``dimmed`` particles' verdicts narrowed them to, widened
+        to every depth of their interval [lo, hi] at which the exposure was dark -- another track's
+        hole or probe crossed the particle's epipolar line there and would have dimmed it just as
+        its own probe did -- where that makes the own probe's part doubtful (``SURE``).
+
+        Judged by its own probe alone, a particle passing under a neighbour's hole was taken to be
+        in its probed part, and the bisection went on in the wrong half, with nothing to tell: with
+        5-10 % of the view under holes once running, and up to half of it in the first frames'
+        whole-range searches, that was the commonest wrong verdict.
+        exposure: the light on the scene during the exposure, in projector pixels (uint8, 255 =
+        full, or float, 1 = full), read at SAMPLES points of each interval; dark is below the
+        verdict's threshold; outside the projector counts as lit (a particle seen lit is in its
+        light).  centres: the particles' camera pixels at the exposure."""
+        rows = np.flatnonzero(dimmed)
+        if len(rows) == 0:
+            return inner, outer
+        full = 255.0 if exposure.dtype == np.uint8 else 1.0
+        w = lo[rows, None] + np.linspace(0.0, 1.0, self.SAMPLES) * (hi - lo)[rows, None]  # (R, S) inverse depths
+        far, near = _apply(self._h_far, centres[rows]), _apply(self._h_near, centres[rows])
+        along = _t(w, self)
+        u = np.rint(far[:, 0, None] + along * (near - far)[:, 0, None]).astype(np.intp)
+        v = np.rint(far[:, 1, None] + along * (near - far)[:, 1, None]).astype(np.intp)
+        height, width = exposure.shape[:2]
+        inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
+        light = np.full(u.shape, full)
+        light[inside] = exposure[v[inside], u[inside]]
+        dark = light < self._threshold * full
+        own = ((w >= inner[rows, None]) & (w <= outer[rows, None])).sum(axis=1)
+        elsewhere = (dark & ((w < inner[rows, None]) | (w > outer[rows, None]))).sum(axis=1)
+        doubtful = own < self.SURE * (own + elsewhere)
+        dark &= doubtful[:, None]
+        some = dark.any(axis=1)
+        at = np.arange(len(rows))
+        first = np.where(some, w[at, dark.argmax(axis=1)], np.inf)
+        last = np.where(some, w[at, self.SAMPLES - 1 - dark[:, ::-1].argmax(axis=1)], -np.inf)
+        inner, outer = inner.copy(), outer.copy()
+        inner[rows] = np.minimum(inner[rows], first)
+        outer[rows] = np.maximum(outer[rows], last)
+        return inner, outer
 
     def prior(self, brightness: float) -> tuple[float, float]:
         """The inverse-depth interval a new particle of this brightness (lit) is searched over:

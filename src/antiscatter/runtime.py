@@ -328,6 +328,7 @@ class _Pipeline:
             self.frame_interval = 1.0 / rate
         self.probe = None
         self.shown_probes: Mapping = {}  # each track's interval in the pattern the next exposure sees
+        self.shown_exposure: np.ndarray | None = None  # and that pattern (probing: verdicts are judged by it)
         self.unlit_ids: np.ndarray | None = None  # tracks whose holes the next exposure is taken under
         self.last_capture: float | None = None  # seconds, the last frame's capture time
         self.frame_period: float | None = None  # seconds, running mean of the capture interval
@@ -422,8 +423,9 @@ class _Pipeline:
                 self.detector.expect(prediction.holes(captured + self.frame_period))
             if self.probe is not None:  # this exposure's verdicts, then the next intervals to try
                 seen = Detections(detections.centres, detections.radii, detections.scores, tracks.detection_ids)
-                self.probe.observe(seen, self.shown_probes,
-                                   tracks.ids[tracks.confirmed & (tracks.misses > 0)])
+                coasting = tracks.confirmed & (tracks.misses > 0)
+                self.probe.observe(seen, self.shown_probes, tracks.ids[coasting], exposure=self.shown_exposure,
+                                   coasting_centres=tracks.centres[coasting])
                 self.probe.forget(tracks.ids)
                 probes = self.probe.probes(holes)
                 if self.pulse_level is not None:
@@ -519,6 +521,8 @@ class _Pipeline:
                 else:
                     self.pulse_image = exposed = np.maximum(shown, np.uint8(self.pulse_level), out=self._lifted)
                     self._lifted = self.pulse_image
+        if self.probe is not None:  # mode single: the buffer stays intact until the next frame is processed
+            self.shown_exposure = exposed if self.light_on else None
         if self.compensate:  # what the next exposure will be lit by: this pattern on the scene
             self.detector.set_light(None if not self.light_on else cv2.warpPerspective(
                 exposed, self.camera_from_projector, self.light_size, flags=cv2.INTER_LINEAR,
