@@ -3,7 +3,8 @@
 Usage: python scripts/bench_probe.py [--particles 300] [--frames 300]
 Particles at random depths over 0.3-3 m in front of the twin's default camera and
 projector (12 cm apart) drift at up to 200 px/s at 60 fps; each frame the probe judges
-the last exposure (a particle under its probe comes back at the dim level, else lit),
+the last exposure (a particle under its probe, or another's, comes back at the dim level,
+else lit; the verdicts read that exposure's pattern along each particle's line),
 picks the next intervals, and draws both patterns the pulse strategy shows (the whole
 intervals dark between exposures, the probes lifted during the exposure), as
 ``antiscatter run`` does.  Median and p99 of each call are reported.
@@ -41,10 +42,15 @@ def main() -> None:
         centres = (start + velocity * f / 60) % (w, h)
         a, b, given = shown.spans(ids, 0.0, 0.0)
         under = given & (a <= 1 / depth) & (1 / depth <= b)
+        if f:  # or under another particle's probe: the light at its true place in the last exposure
+            u, v = np.rint(probe.project(centres, 1 / depth)).astype(np.intp).T
+            inside = (u >= 0) & (u < exposure.shape[1]) & (v >= 0) & (v < exposure.shape[0])
+            under[inside] |= exposure[v[inside], u[inside]] < 128
         found = Detections(centres, np.full(n, 3.0), scores=lit * np.where(under, 0.1, 1.0), track_ids=ids)
         holes = Detections(centres, np.full(n, 3.0), track_ids=ids)
         t0 = time.perf_counter_ns()
-        probe.observe(found, shown, np.empty(0, np.int64))
+        # judged against the light of the last exposure (its pattern, drawn at the end of the last frame)
+        probe.observe(found, shown, np.empty(0, np.int64), exposure=exposure if f else None)
         t1 = time.perf_counter_ns()
         shown = probe.probes(holes)
         t2 = time.perf_counter_ns()

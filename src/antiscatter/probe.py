@@ -11,7 +11,10 @@ of a particle's remaining segment and the next exposure says whether that part
 held it (the particle dimmed, or vanished) or not (it stayed as bright as when
 lit).  Bisection over a few frames pins the hole to the particle's depth; a
 hole that stops working (the particle is lit again, twice in a row) reopens
-the search.  A new particle's search starts from the depths at which earlier
+the search.  A particle that came back dimmed may also have passed under another
+track's hole or probe: each verdict is read against the pattern the exposure was
+actually taken under, along the particle's whole line (:meth:`DepthProbe._widen`).
+A new particle's search starts from the depths at which earlier
 particles of its brightness settled (the lamp's inverse-square fall-off,
 learnt as the dive goes: :meth:`DepthProbe.prior`).
 With pulsed holes (the ``pulse`` strategy) the camera only looks during one
@@ -207,6 +210,11 @@ class DepthProbe:
         step = _apply(self._h_near, centres) - _apply(self._h_far, centres)
         return np.hypot(*(step * (_t(hi, self) - _t(lo, self))[:, None]).T)
 
+    def project(self, centres: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """(N, 2) projector pixels where camera pixels ``centres`` at inverse depths ``w`` are lit."""
+        far, near = _apply(self._h_far, centres), _apply(self._h_near, centres)
+        return far + _t(w, self)[:, None] * (near - far)
+
     # ------------------------------------------------------------------ updates
     def observe(self, detections: Detections, shown: Mapping[int, tuple[float, float]],
                 coasting: np.ndarray, *, exposure: np.ndarray | None = None,
@@ -216,7 +224,12 @@ class DepthProbe:
         detections: this frame's detections with their ``track_ids`` (scores = brightness; a track
             has one detection at most, as the tracker assigns them);
         shown: the probe interval each track's hole covered during this exposure;
-        coasting: ids of confirmed tracks not detected this frame (dark: under their hole).
+        coasting: ids of confirmed tracks not detected this frame (dark: under their hole);
+        exposure: the pattern this exposure was taken under (projector pixels, uint8 or float,
+            full = 255 or 1), so that a particle dimmed by another track's hole is not placed in
+            its own probe (:meth:`_widen`); None: each verdict by the track's own probe alone;
+        coasting_centres: (len(coasting), 2) their camera pixels at the exposure (predicted), for
+            the same with ``exposure``.
 
         Every track's verdict at once; only what the prior is learnt from and asked for (a
         settled depth learnt, a new track's or a restarted search's interval) is taken in the
@@ -314,13 +327,14 @@ class DepthProbe:
         full, or float, 1 = full), read at SAMPLES points of each interval; dark is below the
         verdict's threshold; outside the projector counts as lit (a particle seen lit is in its
         light).  centres: the particles' camera pixels at the exposure."""
-        rows = np.flatnonzero(dimmed)
+        # a settled hole's verdict covers its whole interval: nothing left to widen to
+        rows = np.flatnonzero(dimmed & ((inner > lo) | (outer < hi)))
         if len(rows) == 0:
             return inner, outer
         full = 255.0 if exposure.dtype == np.uint8 else 1.0
         w = lo[rows, None] + np.linspace(0.0, 1.0, self.SAMPLES) * (hi - lo)[rows, None]  # (R, S) inverse depths
         far, near = _apply(self._h_far, centres[rows]), _apply(self._h_near, centres[rows])
-        along = _t(w, self)
+        along = _t(w, self)  # as project(), for every sample at once
         u = np.rint(far[:, 0, None] + along * (near - far)[:, 0, None]).astype(np.intp)
         v = np.rint(far[:, 1, None] + along * (near - far)[:, 1, None]).astype(np.intp)
         height, width = exposure.shape[:2]
