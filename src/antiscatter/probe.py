@@ -211,9 +211,13 @@ class DepthProbe:
         return np.hypot(*(step * (_t(hi, self) - _t(lo, self))[:, None]).T)
 
     def project(self, centres: np.ndarray, w: np.ndarray) -> np.ndarray:
-        """(N, 2) projector pixels where camera pixels ``centres`` at inverse depths ``w`` are lit."""
+        """Projector pixels where camera pixels ``centres`` (N, 2) at inverse depths ``w`` are lit:
+        (N, 2) for w (N,), (N, S, 2) for w (N, S) -- S depths along each one's line."""
         far, near = _apply(self._h_far, centres), _apply(self._h_near, centres)
-        return far + _t(w, self)[:, None] * (near - far)
+        t = _t(w, self)
+        if t.ndim == 1:
+            return far + t[:, None] * (near - far)
+        return far[:, None, :] + t[..., None] * (near - far)[:, None, :]
 
     # ------------------------------------------------------------------ updates
     def observe(self, detections: Detections, shown: Mapping[int, tuple[float, float]],
@@ -320,9 +324,11 @@ class DepthProbe:
         its own probe did -- where that makes the own probe's part doubtful (``SURE``).
 
         Judged by its own probe alone, a particle passing under a neighbour's hole was taken to be
-        in its probed part, and the bisection went on in the wrong half, with nothing to tell: with
-        5-10 % of the view under holes once running, and up to half of it in the first frames'
-        whole-range searches, that was the commonest wrong verdict.
+        in its probed part, and the bisection went on in the wrong half, with nothing to tell.  The
+        lines of particles on the same camera rows overlap in the projector, and in the first
+        frames' whole-range searches half the view is dark: in the twin at 12 cm (8 scenes), 46 %
+        of the dimmed verdicts while searching were for particles not in their own probe, 93 % of
+        those at a place the exposure had dark.
         exposure: the light on the scene during the exposure, in projector pixels (uint8, 255 =
         full, or float, 1 = full), read at SAMPLES points of each interval; dark is below the
         verdict's threshold; outside the projector counts as lit (a particle seen lit is in its
@@ -333,10 +339,7 @@ class DepthProbe:
             return inner, outer
         full = 255.0 if exposure.dtype == np.uint8 else 1.0
         w = lo[rows, None] + np.linspace(0.0, 1.0, self.SAMPLES) * (hi - lo)[rows, None]  # (R, S) inverse depths
-        far, near = _apply(self._h_far, centres[rows]), _apply(self._h_near, centres[rows])
-        along = _t(w, self)  # as project(), for every sample at once
-        u = np.rint(far[:, 0, None] + along * (near - far)[:, 0, None]).astype(np.intp)
-        v = np.rint(far[:, 1, None] + along * (near - far)[:, 1, None]).astype(np.intp)
+        u, v = np.moveaxis(np.rint(self.project(centres[rows], w)).astype(np.intp), -1, 0)
         height, width = exposure.shape[:2]
         inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
         light = np.full(u.shape, full)
