@@ -280,7 +280,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
     on_scene = 0.0
     scene_samples = 0
     series = []
-    exposed: list[Any] = [None]  # the pattern on during the last exposure (projector pixels, 1 = full)
+    exposure_pattern = None  # the pattern on during the last exposure (projector pixels, 1 = full)
 
     def _process(image: np.ndarray, t0: float) -> tuple[float, Any]:
         """The system under test on one exposure: (time its pattern goes on, pattern or prediction)."""
@@ -293,7 +293,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                 seen = Detections(found.centres, found.radii, found.scores, tracks.detection_ids)
                 coasting = tracks.confirmed & (tracks.misses > 0)
                 probe.observe(seen, shown_probes, tracks.ids[coasting],
-                              exposure=exposed[0], coasting_centres=tracks.centres[coasting])
+                              exposure=exposure_pattern, coasting_centres=tracks.centres[coasting])
                 probe.forget(tracks.ids)
                 snapshot = tracker.snapshot()
                 probes = probe.probes(snapshot.holes(t0))
@@ -359,7 +359,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                                      borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
             frame_scene += float(bg[lit_area].sum()) / lit_pixels
             if j == 0 and detector is not None:
-                exposed[0] = shown  # what the probe's verdicts are judged against
+                exposure_pattern = shown  # what the probe's verdicts are judged against
                 # the exposure sits at the start of the frame, inside the first refresh; its pattern
                 # may go on at a later refresh of this same frame
                 # the simulator's brightness is that of a 4 ms exposure: a shorter one gathers less
