@@ -43,9 +43,7 @@ def main() -> None:
         a, b, given = shown.spans(ids, 0.0, 0.0)
         under = given & (a <= 1 / depth) & (1 / depth <= b)
         if f:  # or under another particle's probe: the light at its true place in the last exposure
-            u, v = np.rint(probe.project(centres, 1 / depth)).astype(np.intp).T
-            inside = (u >= 0) & (u < exposure.shape[1]) & (v >= 0) & (v < exposure.shape[0])
-            under[inside] |= exposure[v[inside], u[inside]] < 128
+            under |= probe.dark_at(exposure, probe.project(centres, 1 / depth))
         found = Detections(centres, np.full(n, 3.0), scores=lit * np.where(under, 0.1, 1.0), track_ids=ids)
         holes = Detections(centres, np.full(n, 3.0), track_ids=ids)
         t0 = time.perf_counter_ns()

@@ -219,6 +219,19 @@ class DepthProbe:
             return far + t[:, None] * (near - far)
         return far[:, None, :] + t[..., None] * (near - far)[:, None, :]
 
+    def dark_at(self, exposure: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """Whether the ``exposure`` (projector pixels, uint8 with 255 = full or float with 1 = full)
+        was dark at projector ``points`` (..., 2): below the verdicts' threshold, what dims a
+        particle there as a probe would.  Outside the projector counts as lit (a particle seen lit
+        is in its light)."""
+        full = 255.0 if exposure.dtype == np.uint8 else 1.0
+        u, v = np.moveaxis(np.rint(points).astype(np.intp), -1, 0)
+        height, width = exposure.shape[:2]
+        inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
+        dark = np.zeros(u.shape, bool)
+        dark[inside] = exposure[v[inside], u[inside]] < self._threshold * full
+        return dark
+
     # ------------------------------------------------------------------ updates
     def observe(self, detections: Detections, shown: Mapping[int, tuple[float, float]],
                 coasting: np.ndarray, *, exposure: np.ndarray | None = None,
@@ -330,21 +343,14 @@ class DepthProbe:
         of the dimmed verdicts while searching were for particles not in their own probe, 93 % of
         those at a place the exposure had dark.
         exposure: the light on the scene during the exposure, in projector pixels (uint8, 255 =
-        full, or float, 1 = full), read at SAMPLES points of each interval; dark is below the
-        verdict's threshold; outside the projector counts as lit (a particle seen lit is in its
-        light).  centres: the particles' camera pixels at the exposure."""
+        full, or float, 1 = full), read at SAMPLES points of each interval (:meth:`dark_at`).
+        centres: the particles' camera pixels at the exposure."""
         # a settled hole's verdict covers its whole interval: nothing left to widen to
         rows = np.flatnonzero(dimmed & ((inner > lo) | (outer < hi)))
         if len(rows) == 0:
             return inner, outer
-        full = 255.0 if exposure.dtype == np.uint8 else 1.0
         w = lo[rows, None] + np.linspace(0.0, 1.0, self.SAMPLES) * (hi - lo)[rows, None]  # (R, S) inverse depths
-        u, v = np.moveaxis(np.rint(self.project(centres[rows], w)).astype(np.intp), -1, 0)
-        height, width = exposure.shape[:2]
-        inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
-        light = np.full(u.shape, full)
-        light[inside] = exposure[v[inside], u[inside]]
-        dark = light < self._threshold * full
+        dark = self.dark_at(exposure, self.project(centres[rows], w))
         own = ((w >= inner[rows, None]) & (w <= outer[rows, None])).sum(axis=1)
         elsewhere = (dark & ((w < inner[rows, None]) | (w > outer[rows, None]))).sum(axis=1)
         doubtful = own < self.SURE * (own + elsewhere)

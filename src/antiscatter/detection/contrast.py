@@ -895,6 +895,9 @@ class BackgroundModel:
     #: once the view turns it is followed every frame until this many looks in a row find it moving
     #: no corner by more than ``TURN_STILL`` working pixels
     TURN_STILL = 0.15
+    TURN_STILL_LOOKS = 4
+    #: ... or the moves of this many looks in a row add up to less than ``TURN_STILL`` a look (:meth:`_drifted`)
+    TURN_DRIFT_LOOKS = 16
     #: while following, a move of no corner by this much (working pixels) waits for the next look
     TURN_STEP = 0.3
     #: opening of both frames before the flow while following (particles out, ground texture kept)
@@ -910,9 +913,6 @@ class BackgroundModel:
     #: there the background runs too bright until it learns (at 0.5 % growth a frame over fractal
     #: ground, 15-19 of 20 particles found instead of 20, and no false alarms).
     BRIGHTEN = 5
-    TURN_STILL_LOOKS = 4
-    #: ... or the moves of this many looks in a row add up to less than ``TURN_STILL`` a look (:meth:`_drifted`)
-    TURN_DRIFT_LOOKS = 16
 
     def match_gain(self, half: np.ndarray) -> float:
         """Follow a change of the whole scene's brightness at once: the camera's exposure or gain
@@ -1111,9 +1111,10 @@ class BackgroundModel:
         warm = self._frames < self.WARMUP
         self._frames += 1
         moving = self._moved_ago <= self.MOVED_FRAMES  # then a shorter memory (MOVING_MEMORY), no cap
-        # (LEARN_REACH) not while the view moves (a moved background is off both ways) nor under the pattern
-        capped = warm and not (first or moving) and frozen is None
         if warm:
+            # the cap (LEARN_REACH): not while the view moves (a moved background is off both ways)
+            # nor under the lamp's pattern
+            capped = not (first or moving) and frozen is None
             for band in range(self.bands):
                 self._learn_band(half, mask, band, first, per_update=1, needed=max(2, self.PERSIST // 2),
                                  under=self.UNDER_WARM, frozen=frozen, capped=capped)
@@ -1124,7 +1125,7 @@ class BackgroundModel:
         self._next = (band + 1) % self.bands
         self._learn_band(half, mask, band, first, per_update=self.bands,
                          needed=max(2, -(-self.PERSIST // self.bands)), under=self.UNDER, frozen=frozen,
-                         alpha=max(self.alpha, 1.0 / self.MOVING_MEMORY) if moving else self.alpha, capped=capped)
+                         alpha=max(self.alpha, 1.0 / self.MOVING_MEMORY) if moving else self.alpha)
         if self._next == 0:  # a whole cycle of bands: the noise map has been renewed
             self._update_limit(half.shape)
 
@@ -1675,7 +1676,6 @@ def build_contrast(params: ContrastParams) -> Detector:
         Stage("update", "Background Update", stage_update, after=True),
     )
     return Detector("contrast", stages, params, reset=model.reset, set_light=set_light, expect=expect)
-
 
 
 #: below this share of the lamp's light a pixel's brightness says too little about the scene to learn from
