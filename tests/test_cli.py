@@ -105,7 +105,18 @@ def _bad_inputs(tmp_path):
     badkey.write_text("[run]\nspeed = 3\n")
     badtype = tmp_path / "badtype.toml"
     badtype.write_text("[pattern]\nwidth = 'wide'\n")
+    thin = tmp_path / "thin"  # frames too small to detect in (they crashed OpenCV, some the interpreter)
+    thin.mkdir()
+    cv2.imwrite(str(thin / "0.png"), np.zeros((1, 800, 3), np.uint8))
+    flat = tmp_path / "flat.mkv"
+    write_ffv1(flat, numbered_frames(2, (64, 4)))
     return [
+        (["run", str(thin), "--detections", str(tmp_path / "thin.csv")], "0.png: image of 800x1 px: too small, allowed at least 8x8"),
+        (["run", str(flat)], "flat.mkv: frames of 64x4 px: too small"),
+        (["run", str(video), "--crop", "0:64,0:5"], "v.mkv cropped by --crop: frames of 64x5 px: too small"),
+        (["run", "--size", "700x4"], "source sim: frames of 700x4 px: too small, allowed at least 8x8"),
+        (["twin", "--size", "700x4"], "--size: camera frames of 700x4 px: too small"),
+        (["evaluate", "--degraded", str(thin / "0.png"), "--clean", str(thin / "0.png")], "image of 800x1 px"),
         (["run", str(tmp_path / "missing")], "no such file or folder"),
         (["run", str(empty)], "no frames in this folder; allowed: <int>.png files, or images"),
         (["run", str(notimg)], "0.png: not a readable image"),
@@ -149,6 +160,7 @@ def test_bad_inputs_exit_2_with_one_line(tmp_path, cli):
         assert len(lines) == 1, (args, result.err)
         assert expected in lines[0], (args, lines[0])
         assert lines[0].startswith("antiscatter")
+    assert not (tmp_path / "thin.csv").exists()  # refused before anything was written
 
 
 @pytest.mark.parametrize("source, message", [

@@ -638,6 +638,7 @@ def _twin(args: argparse.Namespace) -> int:
     import json
 
     from .config import parse_size
+    from .detection import check_frame_size
     from .simulate import PRESETS
     from .twin import TwinGeometry, default_runs, simulate_loop
 
@@ -655,6 +656,7 @@ def _twin(args: argparse.Namespace) -> int:
             raise UsageError(f"--{key.replace('_', '-')} {getattr(args, key)}: allowed 0..1")
     try:
         size = parse_size(args.size, key="--size")
+        check_frame_size(*size, what="--size: camera frames")
         projector = parse_size(args.projector_size, key="--projector-size")
         exposure = (args.exposure_ms / 1e3 if args.exposure_ms is not None
                     else min(0.004, 1.0 / args.projector_hz) if args.projector_hz > 0 else 0.004)

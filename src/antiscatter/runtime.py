@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 
 from .config import Config, parse_size
-from .detection import Detector, make_detector
+from .detection import Detector, check_frame_size, make_detector
 from .detections import Detections
 from .errors import UsageError
 from .outputs import LightOutput, open_output
@@ -651,6 +651,10 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
 
     with ExitStack() as stack:
         source = stack.enter_context(source if source is not None else _open_source(config))
+        try:
+            check_frame_size(*source.size, what=f"source {config.source.spec}: frames")
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
         outputs: list[LightOutput] = []
         for spec in config.output.outputs:
             outputs.append(stack.enter_context(open_output(spec, fps=rc.fps or source.fps or 60.0)))

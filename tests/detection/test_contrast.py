@@ -59,6 +59,25 @@ def test_small_frames_work_at_full_resolution():
     assert np.hypot(*(found.centres[np.argmin(found.centres[:, 0])] - [60, 50])) < 1.0
 
 
+@pytest.mark.parametrize("name", ["contrast", "seed"])
+def test_frames_too_small_to_detect_in_are_refused_and_the_smallest_allowed_work(name):
+    # 1-2 px frames and wide frames 3-5 rows high (1-2 rows at half resolution) crashed OpenCV's
+    # resize -- some the interpreter itself, in the noise estimate's band of no rows
+    for height, width in [(1, 800), (2, 16), (4, 700), (5, 1456), (700, 3), (7, 7)]:
+        for shape in [(height, width), (height, width, 3)]:
+            detector = make_detector(name)
+            with pytest.raises(ValueError, match=f"frame of {width}x{height} px: too small, allowed at least 8x8"):
+                detector.detect(np.zeros(shape, np.uint8))
+    rng = np.random.default_rng(1)
+    for height, width in [(8, 8), (8, 700), (9, 1456), (700, 8), (11, 13)]:
+        detector = make_detector(name)
+        for _ in range(3):  # the first frame, then the learnt background's bands
+            frame = rng.integers(20, 30, (height, width, 3), dtype=np.uint8)
+            frame[height // 2, width // 2] = 250
+            found = detector.detect(frame)
+            assert found.centres.shape[1:] == (2,) and len(found.radii) == len(found)
+
+
 def test_two_touching_discs_are_found_as_two():
     frame = scene((400, 300), [(200.0, 150.0, 5.0, 150), (210.0, 150.0, 5.0, 150)], background="flat", noise=1.5)
     found = detect(frame, "contrast")

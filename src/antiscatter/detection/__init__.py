@@ -17,7 +17,20 @@ import numpy as np
 
 from ..detections import Detections
 
-__all__ = ["Stage", "Detector", "DETECTORS", "register_detector", "detector_entry", "make_detector", "detect"]
+__all__ = ["Stage", "Detector", "DETECTORS", "register_detector", "detector_entry", "make_detector", "detect",
+           "MIN_FRAME_SIDE", "check_frame_size"]
+
+#: the fewest pixels a frame may have either way: no background cell, ring or half-resolution
+#: working image fits in less (the ``contrast`` detector's at 2x2 blocks must be 3 px or more;
+#: smaller frames crashed OpenCV's resize, and some the interpreter itself)
+MIN_FRAME_SIDE = 8
+
+
+def check_frame_size(width: int, height: int, what: str = "frame") -> None:
+    """ValueError naming ``what`` when a frame of ``width`` x ``height`` px is too small to detect in."""
+    if width < MIN_FRAME_SIDE or height < MIN_FRAME_SIDE:
+        raise ValueError(f"{what} of {width}x{height} px: too small, allowed at least "
+                         f"{MIN_FRAME_SIDE}x{MIN_FRAME_SIDE}")
 
 
 @dataclass(frozen=True)
@@ -67,7 +80,9 @@ class Detector:
     expect: Callable[[Any], None] = _no_light
 
     def detect(self, image: np.ndarray) -> Detections:
-        """Run every stage on one frame, (H, W, 3) BGR or (H, W) grey uint8."""
+        """Run every stage on one frame, (H, W, 3) BGR or (H, W) grey uint8, at least
+        ``MIN_FRAME_SIDE`` px either way (ValueError otherwise)."""
+        check_frame_size(image.shape[1], image.shape[0])
         value: Any = image
         for stage in self.stages:
             value = stage.run(value)

@@ -50,7 +50,7 @@ import cv2
 import numpy as np
 
 from ..detections import Detections
-from . import Detector, Stage, register_detector
+from . import Detector, Stage, check_frame_size, register_detector
 
 #: planes of a colour frame the detector can work on (ContrastParams.channel)
 CHANNELS = ("luma", "green", "red", "blue", "min")
@@ -561,7 +561,7 @@ class BackgroundModel:
         +0.002, fullres +0.002, dense -0.002, the rest unchanged; the twin's figures the same
         within their scene-to-scene spread (24 scenes, 12 cm and co-located)."""
         r0, r1, c0, c1 = self._rows(band, half.shape[0])
-        if c1 <= c0:
+        if c1 <= c0 or r1 <= r0:
             return
         deficit = cv2.subtract(self.background[r0:r1], half[r0:r1], dtype=cv2.CV_32F)
         cv2.max(deficit, 0.0, dst=deficit)
@@ -1586,11 +1586,14 @@ def build_contrast(params: ContrastParams) -> Detector:
     """The ``contrast`` chain as timed stages (one background model per detector instance)."""
     model = BackgroundModel(cell=params.cell, memory=params.memory, k=params.k, min_contrast=params.min_contrast,
                             follow=params.follow, defer_looks=True)
-    state: dict[str, Any] = {"factor": 2, "width": 0}  # the scales below are for frames of this width
+    state: dict[str, Any] = {"factor": 2, "width": 0, "shape": (0, 0)}  # the scales below are for frames of this width
     persist_kernel = _disc(params.persist_radius) if params.persist_radius else None
 
     def stage_downsample(image: np.ndarray) -> np.ndarray:
         width = image.shape[1]
+        if image.shape[:2] != state["shape"]:
+            check_frame_size(width, image.shape[0])
+            state["shape"] = image.shape[:2]
         if width != state["width"]:
             factor = working_factor(width, params.factor)
             wide = max(1.0, width / 800.0)  # cells and rings cover the same share of the view above 800 px

@@ -12,6 +12,7 @@ from importlib import resources
 from pathlib import Path
 
 from ..errors import UsageError
+from ..detection import check_frame_size
 
 __all__ = ["Scenario", "load_catalogue"]
 
@@ -61,5 +62,9 @@ def load_catalogue(path: str | Path | None = None) -> tuple[int, dict[str, Scena
             frames, seed = int(entry["frames"]), int(entry["seed"])
         except (KeyError, ValueError):
             raise UsageError(f"{where}: scenario.{name} needs size = 'WxH', frames and seed") from None
+        try:
+            check_frame_size(w, h, what=f"{where}: scenario.{name}.size: frames")
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
         scenarios[name] = Scenario(name, preset, (w, h), frames, seed)
     return version, scenarios

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import cv2
 
+from ..detection import check_frame_size
 from ..errors import UsageError
 from .base import Frame, FrameSource, quiet_opencv
 
@@ -55,6 +56,11 @@ class VideoSource(FrameSource):
             self.size = (x1 - x0, y1 - y0)
         else:
             self.size = (width, height)
+        try:
+            check_frame_size(*self.size, what=f"{self.path}{' cropped by --crop' if crop is not None else ''}: frames")
+        except ValueError as exc:
+            self._cap.release()
+            raise UsageError(str(exc)) from None
         self.crop = crop
         self._count = 0
         self._decoded_this_pass = 0
