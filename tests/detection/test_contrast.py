@@ -60,7 +60,7 @@ def test_small_frames_work_at_full_resolution():
 
 
 @pytest.mark.parametrize("name", ["contrast", "seed"])
-def test_frames_too_small_to_detect_in_are_refused_and_the_smallest_allowed_work(name):
+def test_frames_too_small_or_not_8_bit_are_refused_and_the_smallest_allowed_work(name):
     # 1-2 px frames and wide frames 3-5 rows high (1-2 rows at half resolution) crashed OpenCV's
     # resize -- some the interpreter itself, in the noise estimate's band of no rows
     for height, width in [(1, 800), (2, 16), (4, 700), (5, 1456), (700, 3), (7, 7)]:
@@ -68,6 +68,9 @@ def test_frames_too_small_to_detect_in_are_refused_and_the_smallest_allowed_work
             detector = make_detector(name)
             with pytest.raises(ValueError, match=f"frame of {width}x{height} px: too small, allowed at least 8x8"):
                 detector.detect(np.zeros(shape, np.uint8))
+    for frame in (np.zeros((60, 80), np.uint16), np.zeros((60, 80), np.float32), np.zeros(80, np.uint8)):
+        with pytest.raises(ValueError, match="allowed uint8, \\(H, W\\) grey or \\(H, W, 3\\) BGR"):
+            make_detector(name).detect(frame)
     rng = np.random.default_rng(1)
     for height, width in [(8, 8), (8, 700), (9, 1456), (700, 8), (11, 13)]:
         detector = make_detector(name)

@@ -81,7 +81,11 @@ class Detector:
 
     def detect(self, image: np.ndarray) -> Detections:
         """Run every stage on one frame, (H, W, 3) BGR or (H, W) grey uint8, at least
-        ``MIN_FRAME_SIDE`` px either way (ValueError otherwise)."""
+        ``MIN_FRAME_SIDE`` px either way (ValueError otherwise: 16-bit frames are scaled to 8 bits
+        first, as :func:`antiscatter.sources.folder.read_frame` does)."""
+        if image.dtype != np.uint8 or image.ndim not in (2, 3):
+            raise ValueError(f"frame of {image.dtype} with shape {image.shape}: allowed uint8, "
+                             "(H, W) grey or (H, W, 3) BGR")
         check_frame_size(image.shape[1], image.shape[0])
         value: Any = image
         for stage in self.stages:
