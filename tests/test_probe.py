@@ -137,6 +137,9 @@ def test_the_segment_spans_the_disparity_between_near_and_far():
         u, v = far[:2] + t * (near[:2] - far[:2])
         assert pattern[int(round(v)), int(round(u))] == 0
     assert pattern[int(round(far[1])) + 20, int(round(far[0]))] == 255
+    none = np.empty((0, 2))
+    assert p.span_px(none, np.empty(0), np.empty(0)).shape == (0,)
+    assert p.project(none, np.empty(0)).shape == (0, 2)
     forgotten = probe()
     forgotten.observe(Detections(centre, [2.0], scores=[50.0], track_ids=[3]), {}, np.empty(0))
     forgotten.forget(np.array([4]))

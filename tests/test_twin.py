@@ -145,6 +145,12 @@ def test_twin_command_json(cli):
     assert bad.code == 2 and "the twin needs 3-D particles" in bad.err
     bad = cli("twin", "--dim-level", "1.5")
     assert bad.code == 2 and "--dim-level 1.5: allowed 0..1" in bad.err and "Traceback" not in bad.err
+    # the views do not overlap: every figure would be 0 / 0 (it printed 0.000 for all, full light included)
+    bad = cli("twin", "--frames", "2", "--baseline-m", "5")
+    assert bad.code == 2 and "baseline 5 m: the projector lights none of the camera's view" in bad.err
+    # frames so small that no track is searched for: the probe maps no points (OpenCV gives None for none)
+    tiny = cli("twin", "--frames", "3", "--size", "9x9", "--json")
+    assert tiny.code == 0, tiny.err
 
 
 def test_twin_dim_level_reaches_the_dim_and_pulsed_runs(cli):

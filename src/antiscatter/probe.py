@@ -525,4 +525,6 @@ def _t(w: np.ndarray, probe: DepthProbe) -> np.ndarray:
 def _apply(h: np.ndarray, points: np.ndarray) -> np.ndarray:
     """(N, 2) points through the homography ``h``."""
     p = np.asarray(points, np.float64).reshape(-1, 1, 2)
+    if len(p) == 0:  # OpenCV returns None for no points
+        return np.empty((0, 2))
     return cv2.perspectiveTransform(p, np.asarray(h, np.float64)).reshape(-1, 2)

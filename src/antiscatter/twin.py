@@ -52,6 +52,7 @@ import numpy as np
 
 from .detection import make_detector
 from .detections import Detections
+from .errors import UsageError
 from .pattern import render_pattern, scale_mapping
 from .simulate import make_scene
 from .probe import DepthProbe
@@ -275,7 +276,11 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
     inverse_bg = np.linalg.inv(background_map)
     lit_area = cv2.warpPerspective(full, inverse_bg, geometry.camera_size, flags=cv2.INTER_NEAREST,
                                    borderMode=cv2.BORDER_CONSTANT, borderValue=0.0) > 0.5
-    lit_pixels = max(int(lit_area.sum()), 1)
+    lit_pixels = int(lit_area.sum())
+    if lit_pixels == 0:  # every figure would be 0 / 0
+        raise UsageError(f"baseline {geometry.baseline_m:g} m: the projector lights none of the camera's view of "
+                         f"the background {geometry.background_m:g} m away; allowed: a geometry whose views "
+                         "overlap (a smaller --baseline-m)")
     on_particles = off_particles = 0.0
     on_scene = 0.0
     scene_samples = 0

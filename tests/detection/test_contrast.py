@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from antiscatter.detection import detect, make_detector
-from antiscatter.detection.contrast import ContrastParams, downsample, working_factor
+from antiscatter.detection.contrast import ContrastParams, downsample, spatial_background, working_factor
 from antiscatter.evaluate import Matching, evaluate_scenario, summarise
 from antiscatter.simulate.background import fractal_noise, gradient
 
@@ -146,7 +146,8 @@ def test_static_texture_is_learnt_and_stops_being_detected():
                                           ({"cell": 5}, "cell: got 5, allowed an even integer >= 4"),
                                           ({"factor": 3}, "factor: got 3, allowed 0 (automatic), 1 or 2"),
                                           ({"memory": -1}, "memory: got -1, allowed >= 0"),
-                                          ({"lone_k": -1}, "lone_k: got -1, allowed >= 0 (0 = off)")])
+                                          ({"lone_k": -1}, "lone_k: got -1, allowed >= 0 (0 = off)"),
+                                          ({"texture": 129}, "texture: got 129, allowed 0 (off) or 3..128")])
 def test_bad_parameters(bad, message):
     with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)")):
         ContrastParams(**bad)
@@ -596,6 +597,18 @@ def test_a_single_frame_takes_texture_larger_than_particles_as_background():
     assert counts[28] <= 5 and counts[0] >= counts[28] + 10, counts
     with pytest.raises(ValueError, match="texture: got 2, allowed 0"):
         ContrastParams(texture=2)
+
+
+def test_the_texture_median_takes_windows_wider_than_opencvs_8_bit_median():
+    # texture 128 on an 8K frame (7680 px wide: a 614 px window at working resolution, 307 at the
+    # median's half resolution) asks for more than the 255 px OpenCV's 8-bit median takes (it
+    # failed from about 500): the window is capped there
+    half = np.full((600, 900), 40, np.uint8)
+    half[300:340, 400:440] = 200  # a patch of bright texture, smaller than the window
+    background = spatial_background(half, cell=64, window=1025)
+    assert background.shape == half.shape and background.dtype == np.float32
+    assert background[320, 420] < 100  # a patch smaller than the window is not background
+
 
 
 def test_a_single_frame_tells_faint_specks_from_bright_lines_and_edges():

@@ -102,7 +102,7 @@ class ContrastParams:
         (default true: a vehicle moves; at 800x600 pans ~80 us a frame, turns and zooms 0.1-0.15 ms
         on average in a still view, more while it moves -- false for a camera that holds still).
     texture: the size of texture (full-resolution pixels, scaled with the width above 800 px;
-        default 28; 0 = off) that a single frame -- the first, a still, the first after a cut,
+        default 28; 0 = off; at most 128) that a single frame -- the first, a still, the first after a cut,
         every frame with ``memory=0`` -- takes for background.  (1) The background taken from such
         a frame follows the frame's median over that window where it is brighter than the coarse
         background (the median at half the working resolution: 0.15 ms at 400x300).  (2) Its
@@ -189,8 +189,8 @@ class ContrastParams:
             raise ValueError(f"point: got {self.point}, allowed 0 <= point <= 1 (0 = block mean, 1 = block maximum)")
         if not (math.isfinite(self.core) and 0 <= self.core < 1):
             raise ValueError(f"core: got {self.core}, allowed 0 <= core < 1 (0 = the whole mask)")
-        if self.texture != 0 and self.texture < 3:
-            raise ValueError(f"texture: got {self.texture}, allowed 0 (off) or >= 3")
+        if self.texture != 0 and not 3 <= self.texture <= 128:
+            raise ValueError(f"texture: got {self.texture}, allowed 0 (off) or 3..128")
         if self.channel not in CHANNELS:
             raise ValueError(f"channel: got {self.channel!r}, allowed {', '.join(CHANNELS)}")
         if self.factor not in (0, 1, 2):
@@ -284,7 +284,8 @@ def spatial_background(half: np.ndarray, *, cell: int, window: int = 0) -> np.nd
     coarse = cv2.resize(robust, (w, h), interpolation=cv2.INTER_LINEAR)
     if window:  # the median at half the resolution: 0.15 ms at 400x300 where the full one takes 3.6
         small = cv2.resize(half, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
-        texture = cv2.medianBlur(small, max(int(round(window / 2)) | 1, 3))
+        # OpenCV's 8-bit median takes windows up to 255 (a 4K frame with texture 512 asks for more)
+        texture = cv2.medianBlur(small, min(max(int(round(window / 2)) | 1, 3), 255))
         coarse = cv2.max(coarse, cv2.resize(texture, (w, h), interpolation=cv2.INTER_LINEAR).astype(coarse.dtype))
     return coarse.astype(np.float32, copy=False)
 
