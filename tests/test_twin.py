@@ -146,6 +146,10 @@ def test_twin_command_json(cli):
     bad = cli("twin", "--dim-level", "1.5")
     assert bad.code == 2 and "--dim-level 1.5: allowed 0..1" in bad.err and "Traceback" not in bad.err
     # the views do not overlap: every figure would be 0 / 0 (it printed 0.000 for all, full light included)
+    bad = cli("twin", "--latency-ms", "nan")  # a traceback before
+    assert bad.code == 2 and "--latency-ms nan: allowed a number >= 0" in bad.err
+    bad = cli("twin", "--baseline-m", "inf")
+    assert bad.code == 2 and "baseline_m: got inf, allowed a number >= 0" in bad.err
     bad = cli("twin", "--frames", "2", "--baseline-m", "5")
     assert bad.code == 2 and "baseline 5 m: the projector lights none of the camera's view" in bad.err
     # frames so small that no track is searched for: the probe maps no points (OpenCV gives None for none)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import math
 import sys
 from typing import Any, Sequence
 
@@ -647,8 +648,8 @@ def _twin(args: argparse.Namespace) -> int:
         raise UsageError(f"--preset {args.preset!r}: allowed a realistic preset ({allowed}); the twin needs 3-D particles")
     if args.frames <= 0:
         raise UsageError(f"--frames {args.frames}: allowed a positive number")
-    if args.latency_ms < 0:
-        raise UsageError(f"--latency-ms {args.latency_ms}: allowed >= 0")
+    if not (math.isfinite(args.latency_ms) and args.latency_ms >= 0):
+        raise UsageError(f"--latency-ms {args.latency_ms}: allowed a number >= 0")
     if args.plot:
         check_output_path(args.plot, "--plot")
     for key in ("flash_level", "dim_level"):
@@ -716,8 +717,8 @@ def _record(args: argparse.Namespace) -> int:
         size = _size_arg(args.size, "--size")
     for name, value in (("--fps", args.fps), ("--seconds", args.seconds), ("--frames", args.frames),
                         ("--buffer-mb", args.buffer_mb)):
-        if value < 0:
-            raise UsageError(f"{name} {value}: allowed >= 0")
+        if not (math.isfinite(value) and value >= 0):
+            raise UsageError(f"{name} {value}: allowed a number >= 0")
     request = RecordRequest(out=Path(args.out), source=args.source, size=size, fps=args.fps,
                             seconds=args.seconds, frames=args.frames, light=args.light == "on",
                             paused=args.paused, outputs=tuple(args.output or ("none",)),

@@ -115,8 +115,8 @@ class TwinGeometry:
     far_m: float = 3.0
 
     def __post_init__(self) -> None:
-        if self.baseline_m < 0:
-            raise ValueError(f"baseline_m: got {self.baseline_m}, allowed >= 0")
+        if not (math.isfinite(self.baseline_m) and self.baseline_m >= 0):
+            raise ValueError(f"baseline_m: got {self.baseline_m}, allowed a number >= 0")
         ratio = self.projector_hz / self.camera_hz
         if abs(ratio - round(ratio)) > 1e-6 or ratio < 1:
             raise ValueError(f"projector_hz: got {self.projector_hz}, allowed a whole multiple of camera_hz "

@@ -142,7 +142,11 @@ def test_static_texture_is_learnt_and_stops_being_detected():
     assert last >= 10  # memory=0 stays single-frame
 
 
-@pytest.mark.parametrize("bad, message", [({"k": 0}, "k: got 0, allowed > 0"),
+@pytest.mark.parametrize("bad, message", [({"k": 0}, "k: got 0, allowed a number > 0"),
+                                          ({"k": float("inf")}, "k: got inf, allowed a number > 0"),
+                                          ({"halo": float("nan")}, "halo: got nan, allowed a number >= 0"),
+                                          ({"min_contrast": float("inf")}, "min_contrast: got inf, allowed a number"),
+                                          ({"persist_radius": 65}, "persist_radius: got 65, allowed 0..64 (0 = off)"),
                                           ({"cell": 5}, "cell: got 5, allowed an even integer >= 4"),
                                           ({"factor": 3}, "factor: got 3, allowed 0 (automatic), 1 or 2"),
                                           ({"memory": -1}, "memory: got -1, allowed >= 0"),

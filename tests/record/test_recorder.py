@@ -93,7 +93,10 @@ def test_record_bad_input(tmp_path, cli):
     result = cli("record", str(tmp_path / "r.mkv"), "--source", str(tmp_path / "missing.mkv"))
     assert result.code == 2 and "no such file or folder" in result.err
     result = cli("record", str(tmp_path / "r.mkv"), "--fps", "-1")
-    assert result.code == 2 and "--fps -1.0: allowed >= 0" in result.err
+    assert result.code == 2 and "--fps -1.0: allowed a number >= 0" in result.err
+    result = cli("record", str(tmp_path / "r.mkv"), "--seconds", "nan")  # not a time: it used to pass
+    assert result.code == 2 and "--seconds nan: allowed a number >= 0" in result.err
+    assert not (tmp_path / "r.mkv").exists()
 
 
 def test_record_panel_pauses_and_stops(tmp_path):

@@ -195,20 +195,20 @@ class ContrastParams:
             raise ValueError(f"channel: got {self.channel!r}, allowed {', '.join(CHANNELS)}")
         if self.factor not in (0, 1, 2):
             raise ValueError(f"factor: got {self.factor}, allowed 0 (automatic), 1 or 2")
-        if not self.k > 0:
-            raise ValueError(f"k: got {self.k}, allowed > 0")
-        if self.min_contrast < 0:
-            raise ValueError(f"min_contrast: got {self.min_contrast}, allowed >= 0")
+        if not (math.isfinite(self.k) and self.k > 0):
+            raise ValueError(f"k: got {self.k}, allowed a number > 0")
+        if not (math.isfinite(self.min_contrast) and self.min_contrast >= 0):
+            raise ValueError(f"min_contrast: got {self.min_contrast}, allowed a number >= 0")
         if self.cell < 4 or self.cell % 2:
             raise ValueError(f"cell: got {self.cell}, allowed an even integer >= 4")
         if self.memory < 0:
             raise ValueError(f"memory: got {self.memory}, allowed >= 0 (0 = single-frame)")
-        if self.halo < 0:
-            raise ValueError(f"halo: got {self.halo}, allowed >= 0")
+        if not (math.isfinite(self.halo) and self.halo >= 0):
+            raise ValueError(f"halo: got {self.halo}, allowed a number >= 0")
         if not (math.isfinite(self.k_expected) and 0 < self.k_expected <= self.k):
             raise ValueError(f"k_expected: got {self.k_expected}, allowed 0 < k_expected <= k ({self.k})")
-        if self.persist_radius < 0:
-            raise ValueError(f"persist_radius: got {self.persist_radius}, allowed >= 0 (0 = off)")
+        if not 0 <= self.persist_radius <= 64:
+            raise ValueError(f"persist_radius: got {self.persist_radius}, allowed 0..64 (0 = off)")
         if not (math.isfinite(self.lone_k) and self.lone_k >= 0):
             raise ValueError(f"lone_k: got {self.lone_k}, allowed >= 0 (0 = off)")
         if not self.max_radius > 0:
