@@ -91,6 +91,14 @@ def test_save_and_load_round_trip(tmp_path):
      '"homography": [[1, 0], [0, 1]]}', "homography: expected an invertible 3x3 matrix"),
     ('{"version": 1, "camera_size": [400, -3], "projector_size": [640, 400], "working_depth_m": 1, '
      '"homography": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}', "two positive integers"),
+    ('{"version": 1, "camera_size": [400, 300], "projector_size": [640, 400], "working_depth_m": 1, '
+     '"homography": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "baseline_m": NaN}', "baseline_m: got nan, allowed a finite"),
+    ('{"version": 1, "camera_size": [400, 300], "projector_size": [640, 400], "working_depth_m": 1, '
+     '"homography": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "camera_focal_px": 0}', "camera_focal_px: got 0.0, allowed a number > 0"),
+    ('{"version": 1, "camera_size": [400, 300], "projector_size": [640, 400], "working_depth_m": 1, '
+     '"homography": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "planes": [{"depth_m": 0.5, "homography": '
+     '[[1, 0, 0], [0, 1, 0], [0, 0, 1]]}, {"depth_m": 0.5, "homography": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}]}',
+     "planes: depth_m \\[0.5, 0.5\\], allowed distinct distances > 0"),
 ])
 def test_bad_calibration_files_are_rejected(tmp_path, content, message):
     path = tmp_path / "bad.json"
@@ -111,6 +119,11 @@ def test_calibrate_command_and_its_use_in_run_and_twin(tmp_path, cli):
               "--calibration", str(out), "--output", f"files:{tmp_path / 'p'}")
     assert run.code == 0, run.err
     assert cv2.imread(str(tmp_path / "p" / "0.png"), cv2.IMREAD_UNCHANGED).shape == (400, 640)
+    # made for another camera size: every hole would land in the wrong place (it ran before)
+    other = cli("run", "--frames", "3", "--size", "320x240", "--calibration", str(out), "--output", "none",
+                "--detections", str(tmp_path / "d.csv"))
+    assert other.code == 2 and "made for camera 400x300 and projector 640x400; this run has camera 320x240" in other.err
+    assert len(other.err.strip().splitlines()) == 1 and not (tmp_path / "d.csv").exists()
     twin = cli("twin", "--frames", "4", "--size", "400x300", "--projector-size", "640x400", "--preset", "bubbles",
                "--calibration", str(out), "--json")
     assert twin.code == 0, twin.err

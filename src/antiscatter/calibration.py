@@ -166,8 +166,18 @@ def load_calibration(path: str | Path) -> Calibration:
         raise UsageError(f"{path}: camera_size, projector_size and working_depth_m must be numbers") from None
     if len(camera) != 2 or len(projector) != 2 or min(camera + projector) <= 0 or not depth > 0:
         raise UsageError(f"{path}: camera_size and projector_size need two positive integers, working_depth_m > 0")
-    optional = {k: (float(data[k]) if data.get(k) is not None else None)
-                for k in ("baseline_m", "camera_focal_px", "projector_focal_px")}
+    try:
+        optional = {k: (float(data[k]) if data.get(k) is not None else None)
+                    for k in ("baseline_m", "camera_focal_px", "projector_focal_px")}
+    except (TypeError, ValueError):
+        raise UsageError(f"{path}: baseline_m, camera_focal_px and projector_focal_px must be numbers") from None
+    for key, value in optional.items():
+        if value is not None and not (math.isfinite(value) and (key == "baseline_m" or value > 0)):
+            allowed = "a finite number (its sign: the projector's side)" if key == "baseline_m" else "a number > 0"
+            raise UsageError(f"{path}: {key}: got {value}, allowed {allowed}")
+    depths = [d for d, _ in planes]
+    if not all(math.isfinite(d) and d > 0 for d in depths) or len(set(depths)) != len(depths):
+        raise UsageError(f"{path}: planes: depth_m {depths}, allowed distinct distances > 0")
     stereo = None
     if data.get("stereo") is not None:
         s = data["stereo"]

@@ -260,6 +260,21 @@ def _open_csv(path: str, header: list[str]) -> tuple[TextIO, "csv._writer"]:
     return handle, writer
 
 
+def _check_calibration(config: Config, camera_size: tuple[int, int]) -> None:
+    """UsageError when the calibration file was made for another camera or projector size than this
+    run's: its mapping would put every hole in the wrong place (a crop, binning or another
+    resolution moves and scales the camera's pixels)."""
+    from .calibration import load_calibration
+
+    calibration = load_calibration(config.pattern.calibration)
+    projector = (config.pattern.width, config.pattern.height)
+    if tuple(calibration.camera_size) != tuple(camera_size) or tuple(calibration.projector_size) != projector:
+        (cw, ch), (pw, ph) = calibration.camera_size, calibration.projector_size
+        raise UsageError(f"{config.pattern.calibration}: made for camera {cw}x{ch} and projector {pw}x{ph}; this "
+                         f"run has camera {camera_size[0]}x{camera_size[1]} and projector {projector[0]}x"
+                         f"{projector[1]} (allowed: the same sizes -- calibrate again at these)")
+
+
 def _open_source(config: Config) -> FrameSource:
     sc = config.source
     crop = parse_crop(sc.crop) if sc.crop else None
@@ -655,6 +670,8 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
             check_frame_size(*source.size, what=f"source {config.source.spec}: frames")
         except ValueError as exc:
             raise UsageError(str(exc)) from None
+        if config.pattern.calibration:  # before any file is written
+            _check_calibration(config, source.size)
         outputs: list[LightOutput] = []
         for spec in config.output.outputs:
             outputs.append(stack.enter_context(open_output(spec, fps=rc.fps or source.fps or 60.0)))
