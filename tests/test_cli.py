@@ -133,6 +133,8 @@ def _bad_inputs(tmp_path):
         (["run", "-p", "threshold=999"], "unknown key detector.contrast.threshold"),
         (["run", "--size", "0x10"], "source.size: got '0x10', allowed positive WIDTHxHEIGHT"),
         (["run", "--metrics", str(tmp_path / "no" / "m.csv"), "--output", "none"], "does not exist"),
+        (["run", "--record-to", str(tmp_path / "no" / "r.mkv"), "--output", "none"],
+         "run.record_to (--record-to) " + str(tmp_path / "no" / "r.mkv") + ": the folder"),
         (["run", "--mapping", str(badkey)], "--mapping"),
         (["run", "--preset", "storm"], "unknown preset 'storm'"),
         (["run", "camera", "--output", "none"], None),  # on the Pi it may open; off it, exit 2

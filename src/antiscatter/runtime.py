@@ -25,7 +25,7 @@ import numpy as np
 from .config import Config, parse_size
 from .detection import Detector, check_frame_size, make_detector
 from .detections import Detections
-from .errors import UsageError
+from .errors import UsageError, check_output_path
 from .outputs import LightOutput, open_output
 from .pattern import render_pattern, scale_mapping
 from .sources import FrameSource, open_source, parse_crop
@@ -644,6 +644,8 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
     out = out or sys.stdout
     detector = make_detector(config.detector.name, config.detector_params)
     rc = config.run
+    if rc.record_to:  # the panel's Record button would fail mid-run
+        check_output_path(rc.record_to, "run.record_to (--record-to)")
     for note in apply_process_controls(rc):
         print(note, file=log)
 
