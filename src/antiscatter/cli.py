@@ -478,7 +478,7 @@ def _bench(args: argparse.Namespace) -> int:
     import json
 
     from .bench import bench, format_bench, plot_bench
-    from .detection import DETECTORS, detector_entry
+    from .detection import DETECTORS, check_frame_size, detector_entry
 
     if args.frames <= 0:
         raise UsageError(f"--frames {args.frames}: allowed a positive number")
@@ -492,6 +492,10 @@ def _bench(args: argparse.Namespace) -> int:
     sizes = []
     for text in args.sizes.split(","):
         w, h = _size_arg(text.strip(), "--sizes")
+        try:
+            check_frame_size(w, h, what="--sizes: frames")
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
         sizes.append((w, h, "fullres" if w * h > 800 * 600 else "mixed"))
     if args.modes:
         from .bench import bench_modes, format_modes
