@@ -189,21 +189,22 @@ def _settle(p, tid, centre, true_w, lit, frames=14):
 
 
 def test_brightness_learnt_from_settled_depths_narrows_a_new_particles_search():
-    # particles lit by the lamp: brightness falls with the square of the distance (albedo 0.6-1)
+    # particles lit by the lamp: their flux (the detector's score) falls with the fourth power of
+    # the distance (albedo 0.6-1)
     rng = np.random.default_rng(3)
     p = probe()
     centre = np.array([[400.0, 300.0]])
     full = (p.w_far, p.w_near)
     for tid in range(1, 41):
         z = rng.uniform(0.35, 2.5)
-        lit = 40.0 * rng.uniform(0.6, 1.0) / z ** 2
+        lit = 40.0 * rng.uniform(0.6, 1.0) / z ** 4
         if tid == 1:  # before enough settled tracks: the whole range
             p.observe(Detections(centre, [3.0], scores=[lit], track_ids=[tid]), {}, np.empty(0))
             assert p.intervals()[tid] == full
         _settle(p, tid, centre, 1 / z, lit)
         p.forget(np.array([]))
     for z in (0.5, 1.0, 2.0):
-        lit = 40.0 * 0.8 / z ** 2
+        lit = 40.0 * 0.8 / z ** 4
         lo, hi = p.prior(lit)
         assert lo < 1 / z < hi
         assert (hi - lo) < 0.5 * (p.w_near - p.w_far)  # at most half the range to search
@@ -213,7 +214,7 @@ def test_brightness_learnt_from_settled_depths_narrows_a_new_particles_search():
     # a settled hole that misses twice in a row starts again from the prior once, then from the
     # whole range
     z = 1.0
-    lit = 40.0 * 0.8 / z ** 2
+    lit = 40.0 * 0.8 / z ** 4
     _settle(p, 50, centre, 1 / z, lit)
     for expected in (p.prior(lit), full):
         a, b = p.probes(Detections(centre, [3.0], track_ids=[50]))[50]
@@ -226,8 +227,8 @@ def test_brightness_learnt_from_settled_depths_narrows_a_new_particles_search():
         _settle(p, 50, centre, 1 / z, lit)
 
 
-def test_a_few_settled_depths_fix_the_inverse_squares_level():
-    # before FIT_SLOPE tracks the slope is the lamp's inverse square and only its level is learnt:
+def test_a_few_settled_depths_fix_the_brightness_laws_level():
+    # before FIT_SLOPE tracks the slope is the flux's fourth-power law and only its level is learnt:
     # from MIN_PRIOR settled tracks on, a new particle's search is narrowed around it
     rng = np.random.default_rng(5)
     p = probe()
@@ -235,11 +236,11 @@ def test_a_few_settled_depths_fix_the_inverse_squares_level():
     for tid in range(1, DepthProbe.MIN_PRIOR + 1):
         assert p.prior(30.0) == (p.w_far, p.w_near)  # too few yet
         z = rng.uniform(0.4, 2.5)
-        _settle(p, tid, centre, 1 / z, 40.0 * rng.uniform(0.6, 1.0) / z ** 2)
+        _settle(p, tid, centre, 1 / z, 40.0 * rng.uniform(0.6, 1.0) / z ** 4)
         p.forget(np.array([]))
     assert p.prior_size() == DepthProbe.MIN_PRIOR < DepthProbe.FIT_SLOPE
     for z in (0.4, 1.0, 2.5):  # across the range, also beyond the depths it learnt from
-        lo, hi = p.prior(40.0 * 0.8 / z ** 2)
+        lo, hi = p.prior(40.0 * 0.8 / z ** 4)
         assert lo < 1 / z < hi and (hi - lo) < 0.5 * (p.w_near - p.w_far)
         if p.w_far < lo and hi < p.w_near:  # not cut by the working range: FEW_BAND either side at least
             assert hi / lo >= np.exp(2 * DepthProbe.FEW_BAND) - 1e-9

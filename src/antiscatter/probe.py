@@ -117,7 +117,7 @@ class DepthProbe:
         brightness were found at.  The lamp's light falls off with the square of the distance,
         so brightness says much about depth; how much -- albedos, sizes, defocus, the lamp, the
         camera's gain, the water -- is learnt from the probe's own results: a line (of the
-        inverse square's slope, ``SLOPE``, until ``FIT_SLOPE`` tracks have settled, then fitted)
+        brightness law's slope, ``SLOPE``, until ``FIT_SLOPE`` tracks have settled, then fitted)
         through (log brightness, log inverse depth) of the last ``prior_samples`` tracks whose settled
         hole was seen to dim them ``HELD`` exposures in a row (82 % of those lie within 10 % of
         the true depth in the twin, against 67 % of all settled ones), widened to the central
@@ -151,9 +151,17 @@ class DepthProbe:
     #: 0.910.  With the slope given (``SLOPE``) only the level is learnt, and 4 settled tracks
     #: fix it well enough (below).
     MIN_PRIOR = 4
-    #: slope of log inverse depth against log brightness until ``FIT_SLOPE`` tracks have settled:
-    #: the lamp's light falls with the square of the distance, so inverse depth goes as the square
-    #: root of the brightness.  (Fitted, it came out 0.19-0.50 from 12 settled tracks and
+    #: slope of log inverse depth against log brightness until ``FIT_SLOPE`` tracks have settled.
+    #: The brightness is the detector's score: for the default detector a particle's flux, the
+    #: light it sends back summed over its image, which goes as the fourth power of the distance
+    #: (the lamp's inverse square, times the image's area for a particle the camera resolves or
+    #: the camera's own inverse square for one it does not), so inverse depth goes as its fourth
+    #: root: 0.25.  (On the plain mixed scene the fit over every detection is 0.18: attenuation
+    #: and defocus make far particles dimmer still; 0.28 for the peak.)  Twin, 12 cm, 48 scenes
+    #: (seeds 25-72), 60 frames, flux: 0.18 / 0.25 / 0.35 / 0.5 removed 0.806 / 0.802 / 0.799 /
+    #: 0.795, scene light 0.891-0.892.  With the peak for brightness, 0.5 (the square root: the
+    #: peak of a resolved particle goes as the inverse square) -- the figures below, then:
+    #: (fitted, it came out 0.19-0.50 from 12 settled tracks and
     #: 0.44-0.45 from 40 in the twin's first three scenes: defocus and the water's attenuation
     #: make far particles a little dimmer still.)  Fitting both from the 12th track on, 18 scenes
     #: of 60 frames at 12 cm (pulse, prediction) removed 0.749 keeping 0.893 (from frame 20
@@ -161,7 +169,7 @@ class DepthProbe:
     #: scenes of 120 frames 0.796 / 0.911 -> 0.797 / 0.913 (the slope given throughout: 0.756 /
     #: 0.899 and 0.795 / 0.915, but particles too small to resolve fade faster than the inverse
     #: square, and the data's own slope is kept for them once there is enough of it).
-    SLOPE = 0.5
+    SLOPE = 0.25
     FIT_SLOPE = 40
     #: while the slope is given, the prior's interval reaches at least this far either side of the
     #: line (log inverse depth: a factor 1.35 in depth) -- the spread of a few settled tracks
@@ -238,7 +246,8 @@ class DepthProbe:
                 coasting_centres: np.ndarray | None = None) -> None:
         """One exposure's verdicts.
 
-        detections: this frame's detections with their ``track_ids`` (scores = brightness; a track
+        detections: this frame's detections with their ``track_ids`` (scores = brightness, the
+            default detector's flux -- its peak, clipped at white near the lamp, misled; a track
             has one detection at most, as the tracker assigns them);
         shown: the probe interval each track's hole covered during this exposure;
         coasting: ids of confirmed tracks not detected this frame (dark: under their hole);
@@ -371,7 +380,7 @@ class DepthProbe:
             return self.w_far, self.w_near
         if self._fit is None:
             x, y = self._x, self._y
-            if len(x) < self.FIT_SLOPE:  # the inverse square's slope; only the level is learnt
+            if len(x) < self.FIT_SLOPE:  # the brightness law's slope; only the level is learnt
                 slope = self.SLOPE
                 intercept = _median(y - slope * x)
             else:
