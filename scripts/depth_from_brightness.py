@@ -2,28 +2,31 @@
 
 At a 12 cm camera-projector baseline the hole for a particle at unknown depth
 must cover its whole epipolar segment, near..far.  A lamp-lit particle's
-surface brightness falls as exp(-2 c Z) / Z**2 (inverse square, water
-attenuation out and back), so its detected peak could give Z -- if albedo,
-defocus and motion blur do not spread it too much.  This script measures that
-on the simulator, against its true depths:
+flux -- the light it sends back, summed over its image, the default
+detector's score -- falls as exp(-2 c Z) / Z**4 (the lamp's inverse square,
+times the image's area for a particle the camera resolves or the camera's own
+inverse square for one it does not; water attenuation out and back), so it
+could give Z -- if albedo, size, defocus and motion blur do not spread it too
+much.  This script measures that on the simulator, against its true depths:
 
 1. the default detector runs on realistic presets (800x600); detections are
    matched to truth (within max(truth radius, 2 px));
-2. the photometric constant A in  peak = A * lamp(x, y) * exp(-2 c Z) / Z**2
+2. the photometric constant A in  flux = A * lamp(x, y) * exp(-2 c Z) / Z**4
    is fitted (median of log A) on the first half of the frames -- what a
    photometric calibration would give -- with the lamp profile and c taken from
    the scene (a calibration would measure both on a flat target);
-3. on the held-out second half, depth is inverted from each peak; reported:
-   relative error p10/p50/p90, share within +-20 %, share saturated (only a
-   lower bound), and the epipolar segment the p10..p90 interval leaves at the
-   given baseline, against the full near..far segment.
+3. on the held-out second half, depth is inverted from each flux; reported:
+   relative error p10/p50/p90, share within +-20 %, and the epipolar segment
+   the p10..p90 interval leaves at the given baseline, against the full
+   near..far segment.  (A particle clipped at white keeps a flux too: its
+   wings still grow with the light.)
 
 A second cue cancels albedo, size and distance: a coded flash.  Even frames
 are exposed under a uniform flash, odd ones under a ramp across the projector's
 columns, level * (floor + (1 - floor) * u / (W - 1)); the ratio of a particle's
 brightness in a ramp frame to the frame before gives the column u that lights
 it, hence its disparity.  The second table reports |u error| in projector
-pixels, from the detector's peaks and from the simulator's true peaks (the
+pixels, from the detector's fluxes and from the simulator's true peaks (the
 best any brightness measure could do while particles spin and wobble).
 
     python scripts/depth_from_brightness.py [--frames 60] [--baseline-m 0.12]
@@ -66,9 +69,9 @@ def collect(preset: str, frames: int, seed: int) -> dict[str, np.ndarray]:
 
 
 def invert(ratio: np.ndarray, attenuation: float, near: float = 0.2, far: float = 5.0) -> np.ndarray:
-    """Z with exp(-2 c Z) / Z**2 = ratio (monotonic in Z), by table lookup."""
+    """Z with exp(-2 c Z) / Z**4 = ratio (monotonic in Z), by table lookup."""
     zs = np.linspace(near, far, 4000)
-    model = np.exp(-2 * attenuation * zs) / zs ** 2
+    model = np.exp(-2 * attenuation * zs) / zs ** 4
     return np.interp(-ratio, -model, zs)
 
 
@@ -82,14 +85,13 @@ def main() -> None:
     fb = geometry.projector_focal * geometry.baseline_m  # disparity (projector px) = fb / Z
     full = fb * (1 / geometry.near_m - 1 / geometry.far_m)
     print(f"baseline {geometry.baseline_m} m: full near..far epipolar segment {full:.0f} projector px")
-    print(f"{'preset':<9}{'matched':>8}{'sat.':>7}{'p10':>8}{'p50':>8}{'p90':>8}{'+-20%':>8}"
+    print(f"{'preset':<9}{'matched':>8}{'p10':>8}{'p50':>8}{'p90':>8}{'+-20%':>8}"
           f"{'segment px (median)':>21}{'x shorter':>11}")
     for preset in args.presets.split(","):
         d = collect(preset, args.frames, seed=1)
-        saturated = d["score"] >= 250
-        fit = (d["frame"] < 10 + (args.frames - 10) / 2) & ~saturated
-        test = ~fit & ~saturated
-        log_a = np.log(d["score"] / d["lamp"]) + 2 * d["attenuation"] * d["depth"] + 2 * np.log(d["depth"])
+        fit = d["frame"] < 10 + (args.frames - 10) / 2
+        test = ~fit
+        log_a = np.log(d["score"] / d["lamp"]) + 2 * d["attenuation"] * d["depth"] + 4 * np.log(d["depth"])
         a = np.exp(np.median(log_a[fit]))
         estimate = invert(d["score"][test] / d["lamp"][test] / a, d["attenuation"])
         rel = estimate / d["depth"][test] - 1
@@ -98,7 +100,7 @@ def main() -> None:
         z_lo = np.clip(estimate / (1 + p90), geometry.near_m, geometry.far_m)
         z_hi = np.clip(estimate / (1 + p10), geometry.near_m, geometry.far_m)
         segment = fb * (1 / z_lo - 1 / z_hi)
-        print(f"{preset:<9}{int(test.sum()):>8}{saturated.mean():>7.2f}{p10:>+8.2f}{p50:>+8.2f}{p90:>+8.2f}"
+        print(f"{preset:<9}{int(test.sum()):>8}{p10:>+8.2f}{p50:>+8.2f}{p90:>+8.2f}"
               f"{(np.abs(rel) < 0.2).mean():>8.2f}{np.median(segment):>21.0f}{full / np.median(segment):>11.1f}")
     print()
     print("coded flash (uniform, then ramp): |projector column error| px, median and p80")
