@@ -260,10 +260,12 @@ def _open_csv(path: str, header: list[str]) -> tuple[TextIO, "csv._writer"]:
     return handle, writer
 
 
-def _check_calibration(config: Config, camera_size: tuple[int, int]) -> None:
-    """UsageError when the calibration file was made for another camera or projector size than this
-    run's: its mapping would put every hole in the wrong place (a crop, binning or another
-    resolution moves and scales the camera's pixels)."""
+def _load_calibration(config: Config, camera_size: tuple[int, int]) -> Any:
+    """The run's calibration file, or None; a UsageError when it was made for another camera or
+    projector size than this run's: its mapping would put every hole in the wrong place (a crop,
+    binning or another resolution moves and scales the camera's pixels)."""
+    if not config.pattern.calibration:
+        return None
     from .calibration import load_calibration
 
     calibration = load_calibration(config.pattern.calibration)
@@ -273,6 +275,7 @@ def _check_calibration(config: Config, camera_size: tuple[int, int]) -> None:
         raise UsageError(f"{config.pattern.calibration}: made for camera {cw}x{ch} and projector {pw}x{ph}; this "
                          f"run has camera {camera_size[0]}x{camera_size[1]} and projector {projector[0]}x"
                          f"{projector[1]} (allowed: the same sizes -- calibrate again at these)")
+    return calibration
 
 
 def _open_source(config: Config) -> FrameSource:
@@ -313,7 +316,7 @@ FOLDER_FPS = 60.0
 class _Pipeline:
     """Per-run state shared by the execution modes: process a frame, emit a result."""
 
-    def __init__(self, config: Config, detector: Detector, tracker: Any, source: FrameSource,
+    def __init__(self, config: Config, detector: Detector, tracker: Any, source: FrameSource, calibration: Any,
                  outputs: list[LightOutput], metrics_writer: Any, detections_writer: Any,
                  columns: list[str], summary: RunSummary, buffers: int) -> None:
         self.config = config
@@ -327,13 +330,8 @@ class _Pipeline:
         self.summary = summary
         self.projector_size = (config.pattern.width, config.pattern.height)
         mapping = config.pattern.matrix()
-        calibration = None
-        if config.pattern.calibration:
-            from .calibration import load_calibration
-
-            calibration = load_calibration(config.pattern.calibration)
-            if mapping is None:
-                mapping = calibration.homography
+        if mapping is None and calibration is not None:
+            mapping = calibration.homography
         self.mapping = scale_mapping(source.size, self.projector_size) if mapping is None else mapping
         # the tracker's clock: a camera's sensor time; a file's or the simulator's own frame times
         # (replays run faster or slower than they were taken, and velocities are per scene second)
@@ -672,8 +670,7 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
             check_frame_size(*source.size, what=f"source {config.source.spec}: frames")
         except ValueError as exc:
             raise UsageError(str(exc)) from None
-        if config.pattern.calibration:  # before any file is written
-            _check_calibration(config, source.size)
+        calibration = _load_calibration(config, source.size)  # before any file is written
         outputs: list[LightOutput] = []
         for spec in config.output.outputs:
             outputs.append(stack.enter_context(open_output(spec, fps=rc.fps or source.fps or 60.0)))
@@ -692,8 +689,8 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
         print(f"antiscatter run: source {config.source.spec} ({source.size[0]}x{source.size[1]}), "
               f"detector {detector.name}{tracking}, pattern {config.pattern.width}x{config.pattern.height}, "
               f"output {names}, mode {rc.mode}, light strategy {config.light.strategy}", file=log)
-        pipeline = _Pipeline(config, detector, tracker, source, outputs, metrics_writer, detections_writer,
-                             columns, summary, buffers=1 if rc.mode == "single" else 3)
+        pipeline = _Pipeline(config, detector, tracker, source, calibration, outputs, metrics_writer,
+                             detections_writer, columns, summary, buffers=1 if rc.mode == "single" else 3)
         stack.callback(pipeline.stop_recording, wait=True)  # a recording is finished however the run ends
         stop = stack.enter_context(StopFlag())
         if rc.web:

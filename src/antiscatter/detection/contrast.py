@@ -286,7 +286,7 @@ def spatial_background(half: np.ndarray, *, cell: int, window: int = 0) -> np.nd
     coarse = cv2.resize(robust, (w, h), interpolation=cv2.INTER_LINEAR)
     if window:  # the median at half the resolution: 0.15 ms at 400x300 where the full one takes 3.6
         small = cv2.resize(half, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
-        # OpenCV's 8-bit median takes windows up to 255 (a 4K frame with texture 512 asks for more)
+        # OpenCV's 8-bit median takes windows up to 255 (frames over 6000 px wide ask for more)
         texture = cv2.medianBlur(small, min(max(int(round(window / 2)) | 1, 3), 255))
         coarse = cv2.max(coarse, cv2.resize(texture, (w, h), interpolation=cv2.INTER_LINEAR).astype(coarse.dtype))
     return coarse.astype(np.float32, copy=False)
@@ -1602,7 +1602,8 @@ def build_contrast(params: ContrastParams) -> Detector:
     """The ``contrast`` chain as timed stages (one background model per detector instance)."""
     model = BackgroundModel(cell=params.cell, memory=params.memory, k=params.k, min_contrast=params.min_contrast,
                             follow=params.follow, defer_looks=True)
-    state: dict[str, Any] = {"factor": 2, "width": 0, "shape": (0, 0)}  # the scales below are for frames of this width
+    # the scales below are for frames of this width; shape: the last frame's (checked when it changes)
+    state: dict[str, Any] = {"factor": 2, "width": 0, "shape": (0, 0)}
     persist_kernel = _disc(params.persist_radius) if params.persist_radius else None
 
     def stage_downsample(image: np.ndarray) -> np.ndarray:

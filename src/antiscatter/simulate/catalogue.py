@@ -11,8 +11,8 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-from ..errors import UsageError
 from ..detection import check_frame_size
+from ..errors import UsageError
 
 __all__ = ["Scenario", "load_catalogue"]
 
