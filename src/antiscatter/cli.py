@@ -357,6 +357,10 @@ def _evaluate(args: argparse.Namespace) -> int:
     for flag, value in (("--csv", args.csv), ("--plot", args.plot)):
         if value:
             check_output_path(value, flag)
+    if not (math.isfinite(args.rise) and args.rise >= 0):
+        raise UsageError(f"--rise {args.rise}: allowed a number of grey levels >= 0")
+    if args.min_area < 1:
+        raise UsageError(f"--min-area {args.min_area}: allowed >= 1 pixel")
     m = Matching(min_gate=args.min_gate, gate_scale=args.gate_scale, min_visibility=args.min_visibility,
                  min_snr=args.min_snr, margin=args.margin)
     title = ""

@@ -335,3 +335,16 @@ def test_scoreboard_end_to_end_on_a_tiny_catalogue(tmp_path, cli):
     bad = cli("evaluate", "--catalogue", "--catalogue-file", str(catalogue), "--data", str(tmp_path / "data"),
               "--report", str(report), "--bench-frames", "0", "--twin-seeds", "0")
     assert bad.code == 2 and "--twin-seeds 0: allowed >= 1" in bad.err
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--margin", "nan"], "--margin: got nan, allowed a number >= 0"),  # it scored every hole's light as kept
+    (["--min-gate", "nan"], "--min-gate: got nan, allowed a number >= 0"),
+    (["--min-snr", "nan"], "--min-snr: got nan, allowed a number >= 0"),
+    (["--min-visibility", "2"], "--min-visibility: got 2.0, allowed 0..1"),
+    (["--rise", "nan"], "--rise nan: allowed a number of grey levels >= 0"),
+    (["--min-area", "0"], "--min-area 0: allowed >= 1 pixel"),
+])
+def test_matching_settings_that_are_not_numbers_in_range_are_refused(cli, args, message):
+    result = cli("evaluate", "--scenario", "bubbles", "--frames", "1", *args)
+    assert result.code == 2 and message in result.err and len(result.err.strip().splitlines()) == 1

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator
@@ -40,8 +41,11 @@ class Matching:
 
     def __post_init__(self) -> None:
         for name in ("min_gate", "gate_scale", "min_visibility", "margin", "min_snr"):
-            if getattr(self, name) < 0:
-                raise UsageError(f"--{name.replace('_', '-')}: got {getattr(self, name)}, allowed >= 0")
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):  # NaN passed and made every figure NaN or 1
+                raise UsageError(f"--{name.replace('_', '-')}: got {value}, allowed a number >= 0")
+        if self.min_visibility > 1:
+            raise UsageError(f"--min-visibility: got {self.min_visibility}, allowed 0..1 (a share of the particle)")
 
 
 def _score(frame: int, truth: FrameTruth | None, centres: np.ndarray, radii: np.ndarray, m: Matching,
