@@ -117,6 +117,7 @@ def _bad_inputs(tmp_path):
         (["run", "--size", "700x4"], "source sim: frames of 700x4 px: too small, allowed at least 8x8"),
         (["twin", "--size", "700x4"], "--size: camera frames of 700x4 px: too small"),
         (["bench", "--frames", "1", "--sizes", "800x600,4x4"], "--sizes: frames of 4x4 px: too small"),
+        (["run", "--projector-size", "1280x100000"], "pattern.height: got 100000, allowed 1..16384"),
         (["evaluate", "--degraded", str(thin / "0.png"), "--clean", str(thin / "0.png")], "image of 800x1 px"),
         (["run", str(tmp_path / "missing")], "no such file or folder"),
         (["run", str(empty)], "no frames in this folder; allowed: <int>.png files, or images"),

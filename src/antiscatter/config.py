@@ -94,6 +94,11 @@ class DetectorConfig:
     name: str = "contrast"
 
 
+#: the most projector pixels a pattern may have either way (an 8K projector is 7680 wide; a typo
+#: of 100000 made three 128 MB pattern buffers and ran at 6 frames a second)
+MAX_PROJECTOR_SIDE = 16384
+
+
 @dataclass(frozen=True)
 class PatternConfig:
     """The projector image.
@@ -113,10 +118,9 @@ class PatternConfig:
     calibration: str = ""
 
     def __post_init__(self) -> None:
-        if self.width <= 0:
-            raise ValueError(f"width: got {self.width}, allowed > 0")
-        if self.height <= 0:
-            raise ValueError(f"height: got {self.height}, allowed > 0")
+        for name in ("width", "height"):  # the projector's pixels; three such buffers are kept
+            if not 0 < getattr(self, name) <= MAX_PROJECTOR_SIDE:
+                raise ValueError(f"{name}: got {getattr(self, name)}, allowed 1..{MAX_PROJECTOR_SIDE}")
         if not math.isfinite(self.margin) or self.margin < 0:
             raise ValueError(f"margin: got {self.margin}, allowed a number >= 0")
         if self.mapping:
