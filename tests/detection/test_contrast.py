@@ -90,6 +90,23 @@ def test_two_touching_discs_are_found_as_two():
     assert np.allclose(found.centres[:, 1], 150, atol=1.0)
 
 
+@pytest.mark.parametrize("memory", [0, 20])
+def test_a_cluster_of_flat_white_discs_is_split_by_its_shape(memory):
+    # three of the report's white discs touching in a row (taken from its tank, frame 68): pooling
+    # cuts their plateau's edges into intensity maxima, and the cluster was split there -- into two,
+    # one disc lost -- without its shape being looked at
+    discs = [(110.2, 79.5, 4.25), (88.2, 72.9, 6.25), (101.7, 72.6, 6.25)]
+    frame = np.zeros((150, 200, 3), np.uint8)
+    for x, y, r in discs:
+        cv2.circle(frame, (round(x * 16), round(y * 16)), round(r * 16), (255, 255, 255), -1, cv2.LINE_8, 4)
+    detector = make_detector("contrast", ContrastParams(memory=memory))
+    for _ in range(3):
+        found = detector.detect(frame)
+        assert len(found) == 3
+        for x, y, r in discs:
+            assert np.min(np.hypot(found.centres[:, 0] - x, found.centres[:, 1] - y)) < r / 2
+
+
 def test_split_can_be_switched_off():
     frame = scene((400, 300), [(200.0, 150.0, 5.0, 150), (210.0, 150.0, 5.0, 150)], background="flat", noise=1.5)
     assert len(detect(frame, "contrast", split=False)) == 1
