@@ -143,8 +143,13 @@ def _matrix(value: object, where: str) -> np.ndarray:
     return m
 
 
-def load_calibration(path: str | Path) -> Calibration:
-    """Read a calibration file; a bad one is a one-line UsageError naming the file and the key."""
+def load_calibration(path: str | Path, *, sizes: tuple[tuple[int, int], tuple[int, int]] | None = None,
+                     user: str = "this run") -> Calibration:
+    """Read a calibration file; a bad one is a one-line UsageError naming the file and the key.
+
+    sizes: (camera, projector) (width, height) it is to be used at -- a calibration made for other
+    sizes is refused too: its mapping would put every hole in the wrong place (a crop, binning or
+    another resolution moves and scales the camera's pixels); ``user`` names who has those sizes."""
     path = Path(path)
     try:
         data = json.loads(path.read_text())
@@ -166,6 +171,11 @@ def load_calibration(path: str | Path) -> Calibration:
         raise UsageError(f"{path}: camera_size, projector_size and working_depth_m must be numbers") from None
     if len(camera) != 2 or len(projector) != 2 or min(camera + projector) <= 0 or not depth > 0:
         raise UsageError(f"{path}: camera_size and projector_size need two positive integers, working_depth_m > 0")
+    if sizes is not None and (camera, projector) != tuple(tuple(int(v) for v in size) for size in sizes):
+        (cw, ch), (pw, ph) = sizes
+        raise UsageError(f"{path}: made for camera {camera[0]}x{camera[1]} and projector {projector[0]}x"
+                         f"{projector[1]}; {user} has camera {cw}x{ch} and projector {pw}x{ph} (allowed: the "
+                         "same sizes -- calibrate again at these)")
     try:
         optional = {k: (float(data[k]) if data.get(k) is not None else None)
                     for k in ("baseline_m", "camera_focal_px", "projector_focal_px")}

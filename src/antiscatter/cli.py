@@ -496,10 +496,7 @@ def _bench(args: argparse.Namespace) -> int:
     sizes = []
     for text in args.sizes.split(","):
         w, h = _size_arg(text.strip(), "--sizes")
-        try:
-            check_frame_size(w, h, what="--sizes: frames")
-        except ValueError as exc:
-            raise UsageError(str(exc)) from None
+        check_frame_size(w, h, what="--sizes: frames", error=UsageError)
         sizes.append((w, h, "fullres" if w * h > 800 * 600 else "mixed"))
     if args.modes:
         from .bench import bench_modes, format_modes
@@ -678,11 +675,8 @@ def _twin(args: argparse.Namespace) -> int:
     if args.calibration:
         from .calibration import load_calibration, mapping_error_px
 
-        calibration = load_calibration(args.calibration)
-        if calibration.camera_size != geometry.camera_size or calibration.projector_size != geometry.projector_size:
-            raise UsageError(f"{args.calibration}: made for camera {calibration.camera_size} and projector "
-                             f"{calibration.projector_size}, the twin has {geometry.camera_size} and "
-                             f"{geometry.projector_size}")
+        calibration = load_calibration(args.calibration, sizes=(geometry.camera_size, geometry.projector_size),
+                                       user="the twin")
         extra["calibration_error"] = mapping_error_px(calibration.homography,
                                                       geometry.plane_mapping(calibration.working_depth_m),
                                                       geometry.camera_size, geometry.projector_size)

@@ -260,24 +260,6 @@ def _open_csv(path: str, header: list[str]) -> tuple[TextIO, "csv._writer"]:
     return handle, writer
 
 
-def _load_calibration(config: Config, camera_size: tuple[int, int]) -> Any:
-    """The run's calibration file, or None; a UsageError when it was made for another camera or
-    projector size than this run's: its mapping would put every hole in the wrong place (a crop,
-    binning or another resolution moves and scales the camera's pixels)."""
-    if not config.pattern.calibration:
-        return None
-    from .calibration import load_calibration
-
-    calibration = load_calibration(config.pattern.calibration)
-    projector = (config.pattern.width, config.pattern.height)
-    if tuple(calibration.camera_size) != tuple(camera_size) or tuple(calibration.projector_size) != projector:
-        (cw, ch), (pw, ph) = calibration.camera_size, calibration.projector_size
-        raise UsageError(f"{config.pattern.calibration}: made for camera {cw}x{ch} and projector {pw}x{ph}; this "
-                         f"run has camera {camera_size[0]}x{camera_size[1]} and projector {projector[0]}x"
-                         f"{projector[1]} (allowed: the same sizes -- calibrate again at these)")
-    return calibration
-
-
 def _open_source(config: Config) -> FrameSource:
     sc = config.source
     crop = parse_crop(sc.crop) if sc.crop else None
@@ -666,11 +648,13 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
 
     with ExitStack() as stack:
         source = stack.enter_context(source if source is not None else _open_source(config))
-        try:
-            check_frame_size(*source.size, what=f"source {config.source.spec}: frames")
-        except ValueError as exc:
-            raise UsageError(str(exc)) from None
-        calibration = _load_calibration(config, source.size)  # before any file is written
+        check_frame_size(*source.size, what=f"source {config.source.spec}: frames", error=UsageError)
+        calibration = None
+        if config.pattern.calibration:  # before any file is written
+            from .calibration import load_calibration
+
+            calibration = load_calibration(config.pattern.calibration,
+                                           sizes=(source.size, (config.pattern.width, config.pattern.height)))
         outputs: list[LightOutput] = []
         for spec in config.output.outputs:
             outputs.append(stack.enter_context(open_output(spec, fps=rc.fps or source.fps or 60.0)))

@@ -26,10 +26,11 @@ __all__ = ["Stage", "Detector", "DETECTORS", "register_detector", "detector_entr
 MIN_FRAME_SIDE = 8
 
 
-def check_frame_size(width: int, height: int, what: str = "frame") -> None:
-    """ValueError naming ``what`` when a frame of ``width`` x ``height`` px is too small to detect in."""
+def check_frame_size(width: int, height: int, what: str = "frame", *, error: type[Exception] = ValueError) -> None:
+    """``error`` (ValueError, or the caller's: a UsageError for input from the command line) naming
+    ``what`` when a frame of ``width`` x ``height`` px is too small to detect in."""
     if width < MIN_FRAME_SIDE or height < MIN_FRAME_SIDE:
-        raise ValueError(f"{what} of {width}x{height} px: too small, allowed at least "
+        raise error(f"{what} of {width}x{height} px: too small, allowed at least "
                          f"{MIN_FRAME_SIDE}x{MIN_FRAME_SIDE}")
 
 

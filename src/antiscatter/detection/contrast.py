@@ -52,7 +52,7 @@ import cv2
 import numpy as np
 
 from ..detections import Detections
-from . import Detector, Stage, check_frame_size, register_detector
+from . import Detector, Stage, register_detector
 
 #: planes of a colour frame the detector can work on (ContrastParams.channel)
 CHANNELS = ("luma", "green", "red", "blue", "min")
@@ -1356,13 +1356,14 @@ def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarr
     kept_c, kept_y, kept_x = _separate(pl[peaks], py[peaks], px[peaks], s[peaks].astype(np.float64) / weights,
                                        excess, noise_at(noise, px[peaks], py[peaks], excess.shape), min_d2=min_d2)
     counts = np.bincount(kept_c, minlength=n)
+    pw = weight[idx]
+    top = peak if peak is not None else _group_max(pl, n, pw)[0]
     shaped = counts < 2  # the components whose shape is looked at: those the intensity did not split,
     if fine:  # and flat ones, whose intensity maxima are where pooling cut their plateau's edges
-        top = peak if peak is not None else _group_max(pl, n, weight[idx])[0]
-        shaped |= np.bincount(pl[weight[idx] >= _PLATEAU_SHARE * top[pl]], minlength=n) >= _PLATEAU
-    necked = _necked(pl, px, py, weight[idx], n, shaped, peak=peak)
+        shaped |= np.bincount(pl[pw >= _PLATEAU_SHARE * top[pl]], minlength=n) >= _PLATEAU
+    necked = _necked(pl, px, py, pw, n, shaped, peak=top)
     if len(necked):
-        flat_c, flat_y, flat_x = _split_flat(pl, px, py, weight[idx], n, necked, full)
+        flat_c, flat_y, flat_x = _split_flat(pl, px, py, pw, n, necked, full)
         if len(flat_c):
             replaced = np.zeros(n, bool)
             replaced[flat_c] = True
@@ -1619,15 +1620,11 @@ def build_contrast(params: ContrastParams) -> Detector:
     """The ``contrast`` chain as timed stages (one background model per detector instance)."""
     model = BackgroundModel(cell=params.cell, memory=params.memory, k=params.k, min_contrast=params.min_contrast,
                             follow=params.follow, defer_looks=True)
-    # the scales below are for frames of this width; shape: the last frame's (checked when it changes)
-    state: dict[str, Any] = {"factor": 2, "width": 0, "shape": (0, 0)}
+    state: dict[str, Any] = {"factor": 2, "width": 0}  # the scales below are for frames of this width
     persist_kernel = _disc(params.persist_radius) if params.persist_radius else None
 
     def stage_downsample(image: np.ndarray) -> np.ndarray:
         width = image.shape[1]
-        if image.shape[:2] != state["shape"]:
-            check_frame_size(width, image.shape[0])
-            state["shape"] = image.shape[:2]
         if width != state["width"]:
             factor = working_factor(width, params.factor)
             wide = max(1.0, width / 800.0)  # cells and rings cover the same share of the view above 800 px

@@ -62,9 +62,6 @@ def load_catalogue(path: str | Path | None = None) -> tuple[int, dict[str, Scena
             frames, seed = int(entry["frames"]), int(entry["seed"])
         except (KeyError, ValueError):
             raise UsageError(f"{where}: scenario.{name} needs size = 'WxH', frames and seed") from None
-        try:
-            check_frame_size(w, h, what=f"{where}: scenario.{name}.size: frames")
-        except ValueError as exc:
-            raise UsageError(str(exc)) from None
+        check_frame_size(w, h, what=f"{where}: scenario.{name}.size: frames", error=UsageError)
         scenarios[name] = Scenario(name, preset, (w, h), frames, seed)
     return version, scenarios

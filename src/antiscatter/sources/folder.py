@@ -69,10 +69,7 @@ def read_frame(path: Path, bits: int | None = None) -> tuple[np.ndarray, int]:
         image = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
     if image is None:
         raise UsageError(f"{path}: not a readable image")
-    try:
-        check_frame_size(image.shape[1], image.shape[0], what=f"{path}: image")
-    except ValueError as exc:
-        raise UsageError(str(exc)) from None
+    check_frame_size(image.shape[1], image.shape[0], what=f"{path}: image", error=UsageError)
     if image.dtype == np.uint8:
         return image, 8
     if image.dtype != np.uint16:

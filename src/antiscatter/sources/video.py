@@ -57,10 +57,11 @@ class VideoSource(FrameSource):
         else:
             self.size = (width, height)
         try:
-            check_frame_size(*self.size, what=f"{self.path}{' cropped by --crop' if crop is not None else ''}: frames")
-        except ValueError as exc:
+            check_frame_size(*self.size, what=f"{self.path}{' cropped by --crop' if crop is not None else ''}: frames",
+                             error=UsageError)
+        except UsageError:
             self._cap.release()
-            raise UsageError(str(exc)) from None
+            raise
         self.crop = crop
         self._count = 0
         self._decoded_this_pass = 0
