@@ -317,6 +317,41 @@ def test_strategy_dim_draws_holes_at_the_dim_level(tmp_path, cli):
     assert set(np.unique(pattern)) == {51, 255}
 
 
+@pytest.mark.parametrize("strategy", ["dim", "pulse"])
+def test_adaptive_levels_give_each_tracked_hole_the_light_its_particle_needs(tmp_path, cli, strategy):
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i in range(4):  # a bright disc moving right and a faint one (grey 60 on black)
+        image = draw_discs((160, 120), [(30.0 + 3 * i, 40.0, 5.0)])
+        image = np.maximum(image, draw_discs((160, 120), [(120.0, 80.0, 2.0)], value=60))
+        cv2.imwrite(str(frames / f"{i}.png"), image)
+
+    def holes(*extra):
+        out = tmp_path / ("pat" + "".join(extra))
+        result = cli("run", str(frames), "--strategy", strategy, "--track", "--dim-level", "0.2",
+                     "--output", f"files:{out}", *extra)
+        assert result.code == 0, result.err
+        lit = [cv2.imread(str(out / f"{k}.png"), cv2.IMREAD_UNCHANGED) for k in range(4)]
+        if strategy == "dim":
+            return lit
+        for pattern in lit:  # pulse: dark between exposures
+            assert set(np.unique(pattern)) == {0, 255}
+        # the holes' light is in the pattern shown while the camera exposes: the next frame's pulse
+        return [cv2.imread(str(out / f"flash-{k + 1}.png"), cv2.IMREAD_UNCHANGED) for k in range(3)]
+
+    # (30, 40) and (120, 80) in the 160x120 frame -> (240, 266.7) and (960, 533.3) on the projector
+    adaptive = holes()
+    assert adaptive[0][267, 240] == 5  # the bright disc: the least level, 0.02
+    assert 5 < adaptive[0][533, 960] < 51  # the faint one needs more light to stay visible
+    assert all(p[267, 240 + 24 * k] == 5 for k, p in enumerate(adaptive))
+    fixed = holes("--levels", "fixed")
+    assert fixed[0][267, 240] == fixed[0][533, 960] == 51
+    seed = holes("--detector", "seed")  # its scores are no flux: the dim level for every hole
+    assert seed[0][267, 240] == 51
+    bad = cli("run", str(frames), "--strategy", strategy, "--track", "--min-level", "2", "--output", "none")
+    assert bad.code == 2 and "light.min_level: got 2.0, allowed a number 0..1" in bad.err
+
+
 def test_strategy_flash_shows_a_uniform_flash_before_every_capture(tmp_path, cli):
     video = tmp_path / "light.mkv"
     result = cli("run", str(_disc_frames(tmp_path)), "--strategy", "flash", "--flash-level", "0.5",
@@ -577,19 +612,21 @@ def test_the_vehicles_default_configuration_runs_on_a_live_source(tmp_path):
         rows = list(csv.DictReader((tmp_path / "d.csv").open()))
         assert len(rows) >= 30 and all(int(r["track_id"]) > 0 for r in rows)
         assert len({r["track_id"] for r in rows}) <= 6  # two particles, few identities
-        level = round(config.light.dim_level * 255)
+        level, least = round(config.light.dim_level * 255), round(config.light.min_level * 255)
         last = cv2.imread(str(tmp_path / "p" / "18.png"), cv2.IMREAD_UNCHANGED)
-        assert last.min() == (0 if pulsed else level)
+        # each hole at its own level without probing: this camera's particles come back as bright
+        # under their holes as lit (it does not see the light), so every hole is at the least level
+        assert last.min() == (0 if pulsed else level if probing else least)
         if not pulsed:
             assert not list((tmp_path / "p").glob("flash-*.png"))  # dim: the pattern alone
             continue
         # each capture under the last pattern with its holes lifted to the dim level; probing, under
         # the probes' halves of the intervals that the pattern keeps dark between exposures
         pulse = cv2.imread(str(tmp_path / "p" / "flash-19.png"), cv2.IMREAD_UNCHANGED)
-        assert set(np.unique(pulse)) == {level, 255}
+        assert set(np.unique(pulse)) == {level if probing else least, 255}
         if probing:
             # (the holes are discs bigger than the intervals here: each half's disc sits at the half's
             # middle, a few pixels from the whole interval's)
             assert (last[pulse == level] == 0).mean() > 0.8 and (pulse == level).sum() <= (last == 0).sum()
         else:
-            assert np.array_equal(pulse, np.maximum(last, level))
+            assert np.array_equal(pulse, np.maximum(last, least))

@@ -251,3 +251,19 @@ def test_a_shorter_exposure_gathers_less_light_and_fast_projectors_run(cli, monk
     assert all(0 <= r["backscatter_removed"] <= 1 for r in json.loads(result.out)["runs"])
     bad = cli("twin", "--flash-level", "2")
     assert bad.code == 2 and "--flash-level 2.0: allowed 0..1" in bad.err
+
+
+@pytest.mark.parametrize("strategy, share", [("dim", 1.0), ("pulse", 0.5)])
+def test_adaptive_holes_leave_a_bright_particle_only_the_light_it_needs_to_stay_found(strategy, share):
+    # tracked (prediction on), the 4 mm bubble 0.6 m away comes back far brighter than the detector
+    # needs even at a tenth of the lamp: its hole is turned down to the least level and it stays
+    # found every frame (its track never misses)
+    runs = {levels: loop(strategy, dim_level=0.2, predict=True, levels=levels) for levels in ("fixed", "adaptive")}
+    fixed, adaptive = ([f["removed"] for f in runs[lv]["series"][12:]] for lv in ("fixed", "adaptive"))
+    assert fixed == pytest.approx([1 - 0.2 * share] * 12, abs=1e-6)
+    # at the least level (0.02, 5 grey levels) or a grey level or two above it when the flux came
+    # back under target; a miss under the hole would have doubled it (0.04 or more)
+    floor = 1 - round(0.02 * 255) / 255 * share
+    assert max(adaptive) == pytest.approx(floor, abs=1e-6) and min(adaptive) >= 1 - 0.03 * share
+    assert runs["adaptive"]["levels"] == "adaptive" and runs["fixed"]["levels"] == "fixed"
+    assert runs["adaptive"]["scene_light_kept"] == pytest.approx(runs["fixed"]["scene_light_kept"], abs=0.01)

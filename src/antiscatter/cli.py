@@ -91,6 +91,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "particles that went dark (turns --track on)")
     g.add_argument("--dim-level", type=float, help="light left in dim holes (pulse: while the camera exposes), 0..1 (default 0.1)")
     g.add_argument("--flash-level", type=float, help="brightness of the detection flash, 0..1 (default 0.25)")
+    g.add_argument("--levels", choices=("adaptive", "fixed"),
+                   help="adaptive (default): with dim or pulse and tracking, each hole leaves its particle just "
+                        "the light the detector needs to see it, between --min-level and --dim-level; fixed: "
+                        "--dim-level for every hole")
+    g.add_argument("--min-level", type=float, help="the least light an adaptive hole leaves, 0..1 (default 0.02)")
     g.add_argument("--depth", choices=("auto", "fixed", "probe"), help="auto (default): probe where it can "
                    "run, else fixed; fixed: holes at the calibration's working distance; probe: each particle's depth found by bisection along its epipolar "
                    "line under dim holes (needs --strategy dim or pulse and --calibration from two distances)")
@@ -693,7 +698,7 @@ def _twin(args: argparse.Namespace) -> int:
         runs.append(result)
         if not args.json:
             print(f"{result['detector'] or 'full light':<10} {result['mapping']:<11} {result['strategy']:<6} "
-                  f"predict {str(result['predict']).lower():<5}  removed {result['backscatter_removed']:.3f}  "
+                  f"predict {str(result['predict']).lower():<5} {(result['levels'] or '') + (' levels' if result['levels'] else ''):<15} removed {result['backscatter_removed']:.3f}  "
                   f"kept {result['scene_light_kept']:.3f}  (from frame {result['steady_from_frame']}: "
                   f"{result['backscatter_removed_steady']:.3f} / {result['scene_light_kept_steady']:.3f})")
     if args.plot:
@@ -790,7 +795,7 @@ def _run_config(args: argparse.Namespace):
         "pattern": {"margin": args.margin},
         "track": {"enabled": args.track, "predict": args.predict, "latency_ms": args.latency_ms},
         "light": {"strategy": args.strategy, "dim_level": args.dim_level, "flash_level": args.flash_level,
-                  "depth": args.depth},
+                  "depth": args.depth, "levels": args.levels, "min_level": args.min_level},
         "output": {"outputs": tuple(args.output) if args.output else None},
         "run": {"frames": args.frames, "fps": args.fps, "nice": args.nice,
                 "metrics": args.metrics, "detections": args.detections, "mode": args.mode,

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from .errors import UsageError
+from .levels import MIN_LEVEL
 
 __all__ = ["SourceConfig", "DetectorConfig", "PatternConfig", "OutputConfig", "RunConfig", "TrackConfig",
            "LightConfig", "STRATEGIES", "Config", "load_config", "build_section", "parse_param", "parse_size"]
@@ -233,6 +234,14 @@ class LightConfig:
         judged by the next exposures: needs strategy dim or pulse, tracking, mode single and a calibration
         with a baseline, i.e. measured at two distances or more; see antiscatter.probe).
     near_m, far_m: the working distances a particle may be at (probe).
+    levels: ``adaptive`` (default) -- with ``dim`` or ``pulse``, tracking on and no depth probing,
+        each hole leaves its own particle just the light it needs to stay visible, from the
+        detector's flux of it under its hole (:class:`~antiscatter.levels.HoleLevels`), between
+        ``min_level`` and ``dim_level``: most of the backscatter comes from near, bright particles
+        that are seen at a fraction of what the faintest need.  ``fixed``: ``dim_level`` for every
+        hole.  Probing keeps ``dim_level`` (its verdicts are read against it); so do detectors
+        whose scores are not a flux (``seed``).
+    min_level: the least light an adaptive hole leaves its particle, 0..1 (capped at ``dim_level``).
     """
 
     strategy: str = "auto"
@@ -242,15 +251,19 @@ class LightConfig:
     depth: str = "auto"
     near_m: float = 0.3
     far_m: float = 3.0
+    levels: str = "adaptive"
+    min_level: float = MIN_LEVEL
 
     def __post_init__(self) -> None:
+        if self.levels not in ("adaptive", "fixed"):
+            raise ValueError(f"levels: got {self.levels!r}, allowed adaptive, fixed")
         if self.strategy not in ("auto", *STRATEGIES):
             raise ValueError(f"strategy: got {self.strategy!r}, allowed auto, {', '.join(STRATEGIES)}")
         if self.depth not in ("auto", "fixed", "probe"):
             raise ValueError(f"depth: got {self.depth!r}, allowed auto, fixed, probe")
         if not (math.isfinite(self.near_m) and math.isfinite(self.far_m) and 0 < self.near_m < self.far_m):
             raise ValueError(f"near_m, far_m: got {self.near_m}, {self.far_m}; allowed 0 < near_m < far_m")
-        for key in ("dim_level", "flash_level"):
+        for key in ("dim_level", "flash_level", "min_level"):
             value = getattr(self, key)
             if not (math.isfinite(value) and 0 <= value <= 1):
                 raise ValueError(f"{key}: got {value}, allowed a number 0..1")

@@ -58,7 +58,7 @@ def blank_pattern(size: tuple[int, int], out: np.ndarray | None = None) -> np.nd
 
 def render_pattern(detections: Detections, *, size: tuple[int, int] = (1280, 800),
                    mapping: np.ndarray | None = None, margin: float = 0.0,
-                   out: np.ndarray | None = None, hole: int = 0) -> np.ndarray:
+                   out: np.ndarray | None = None, hole: int | np.ndarray = 0) -> np.ndarray:
     """Draw the projector pattern: white (255) with filled discs of ``hole`` (0 = black) at the particles.
 
     Parameters
@@ -68,7 +68,9 @@ def render_pattern(detections: Detections, *, size: tuple[int, int] = (1280, 800
     mapping : (3, 3) camera-to-projector homography; identity when None.
     margin : pixels added to every hole's radius (in projector pixels).
     out : (height, width) uint8 buffer to draw into (reused between frames).
-    hole : grey level of the holes, 0..255 (above 0 for dim holes).
+    hole : grey level of the holes, 0..255 (above 0 for dim holes), or one per detection ((N,)
+        array, :class:`~antiscatter.levels.HoleLevels`); where holes overlap the brighter wins
+        (each of the particles there must stay visible).
 
     Returns
     -------
@@ -85,7 +87,17 @@ def render_pattern(detections: Detections, *, size: tuple[int, int] = (1280, 800
     limit = float(1 << 27)
     ok = (np.abs(cx) < limit) & (np.abs(cy) < limit) & (cr < limit)
     circle, line = cv2.circle, cv2.LINE_8
-    for x, y, r in zip(cx[ok].astype(np.int64).tolist(), cy[ok].astype(np.int64).tolist(),
-                       cr[ok].astype(np.int64).tolist()):
-        circle(out, (x, y), r, hole, -1, line, _SHIFT)
+    if np.ndim(hole) == 0:
+        for x, y, r in zip(cx[ok].astype(np.int64).tolist(), cy[ok].astype(np.int64).tolist(),
+                           cr[ok].astype(np.int64).tolist()):
+            circle(out, (x, y), r, int(hole), -1, line, _SHIFT)
+        return out
+    levels = np.asarray(hole).reshape(-1)
+    if len(levels) != len(detections):
+        raise ValueError(f"hole: got {len(levels)} levels for {len(detections)} detections")
+    order = np.flatnonzero(ok)
+    order = order[np.argsort(levels[order], kind="stable")]  # the brightest drawn last
+    for x, y, r, g in zip(cx[order].astype(np.int64).tolist(), cy[order].astype(np.int64).tolist(),
+                          cr[order].astype(np.int64).tolist(), levels[order].astype(np.int64).tolist()):
+        circle(out, (x, y), r, g, -1, line, _SHIFT)
     return out

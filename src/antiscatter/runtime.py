@@ -26,6 +26,7 @@ from .config import Config, parse_size
 from .detection import Detector, check_frame_size, make_detector
 from .detections import Detections
 from .errors import UsageError, check_output_path
+from .levels import HoleLevels
 from .outputs import LightOutput, open_output
 from .pattern import render_pattern, scale_mapping
 from .sources import FrameSource, open_source, parse_crop
@@ -346,12 +347,17 @@ class _Pipeline:
         # pulse: while the camera exposes, the last pattern with its holes lifted to dim_level
         self.pulse_level = round(light.dim_level * 255) if light.strategy == "pulse" else None
         self.exposing = self.flash_image is not None or self.pulse_level is not None
+        # each hole's own light (dim, or pulse while the camera exposes): tracked, not probed
+        self.levels = (HoleLevels(light.dim_level, floor=min(light.min_level, light.dim_level))
+                       if light.levels == "adaptive" and light.strategy in ("dim", "pulse")
+                       and tracker is not None and self.probe is None else None)
         self.full_image = np.full((height, width), 255, np.uint8)
         self.last_pattern: np.ndarray | None = None  # the pattern the lamp shows between exposures
         self.pulse_image: np.ndarray | None = None  # the last pattern, lifted (pulse)
         self._lifted: np.ndarray | None = None  # the buffer pulse_image is lifted into
-        self.exposure_buffer = (np.empty((height, width), np.uint8)  # pulse with probing: the probe halves
-                                if self.probe is not None and self.pulse_level is not None else None)
+        self.exposure_buffer = (np.empty((height, width), np.uint8)  # pulse with probing or levels: the
+                                if (self.probe is not None or self.levels is not None)  # lifted pattern
+                                and self.pulse_level is not None else None)
         # the light the next exposure gets, in camera pixels at half size (the detector's working scale)
         self.compensate = bool(light.compensate) and light.strategy != "flash" and config.run.mode == "single"
         # the detector's learning for the next frames (stages marked ``after``) runs once the
@@ -401,6 +407,8 @@ class _Pipeline:
                         else frame.index * self.frame_interval)
             tracks = self.tracker.update(detections, captured, unlit=self.unlit_ids)
             track_ids = tracks.detection_ids
+            if self.levels is not None:  # how bright each particle came back under its hole
+                self.levels.update(detections, track_ids, self.unlit_ids, tracks.ids)
             prediction = self.tracker.snapshot()
             if tc.predict:
                 latency = tc.latency_ms / 1e3 if tc.latency_ms >= 0 else self.latency_estimate
@@ -455,6 +463,17 @@ class _Pipeline:
             if rec.intervals is not None:
                 rec.exposure = self.probe.render(holes, rec.probes, size=self.projector_size, margin=margin,
                                                  out=self.exposure_buffer, hole=self.pulse_level)
+        elif self.levels is not None:
+            holes, margin = rec.pattern, self.config.pattern.margin
+            grey = self.levels.grey(holes.track_ids, len(holes))
+            if self.pulse_level is None:  # dim: each hole at its own level
+                rec.pattern = render_pattern(holes, size=self.projector_size, mapping=self.mapping, margin=margin,
+                                             out=buffer, hole=grey)
+            else:  # pulse: dark between exposures, each at its own level while the camera looks
+                rec.pattern = render_pattern(holes, size=self.projector_size, mapping=self.mapping, margin=margin,
+                                             out=buffer)
+                rec.exposure = render_pattern(holes, size=self.projector_size, mapping=self.mapping,
+                                              margin=margin, out=self.exposure_buffer, hole=grey)
         else:
             rec.pattern = render_pattern(rec.pattern, size=self.projector_size, mapping=self.mapping,
                                          margin=self.config.pattern.margin, out=buffer, hole=self.hole_level)
@@ -511,7 +530,7 @@ class _Pipeline:
             # before the next pattern is drawn, so these buffers are still intact then (no copies)
             self.last_pattern = shown
             if self.pulse_level is not None:
-                if rec.exposure is not None and self.light_on:  # probing: the halves, drawn lifted
+                if rec.exposure is not None and self.light_on:  # probing's halves or the levels, drawn lifted
                     self.pulse_image = exposed = rec.exposure
                 else:
                     self.pulse_image = exposed = np.maximum(shown, np.uint8(self.pulse_level), out=self._lifted)

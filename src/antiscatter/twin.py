@@ -53,6 +53,7 @@ import numpy as np
 from .detection import make_detector
 from .detections import Detections
 from .errors import UsageError
+from .levels import HoleLevels
 from .pattern import render_pattern, scale_mapping
 from .simulate import make_scene
 from .probe import DepthProbe
@@ -65,6 +66,7 @@ class _Fixed:
 
     light: np.ndarray
     ids: np.ndarray
+    holes: Detections  # (pulse: lifted while the camera exposes)
 
 
 @dataclass(frozen=True)
@@ -85,6 +87,8 @@ SETTLE_FRAMES = 20
 #: camera frame gathers by exposure / this
 REFERENCE_EXPOSURE_S = 0.004
 MAPPINGS = ("identity", "calibrated", "range", "probe")
+#: the light in dim and pulsed holes: each particle's own (HoleLevels) or ``dim_level`` for all
+LEVELS = ("adaptive", "fixed")
 
 
 def steady_from(frames: int) -> int:
@@ -164,7 +168,10 @@ class TwinRun:
     """One configuration of the system under test (``detector`` None = no system: full light).
 
     Defaults are ``antiscatter run``'s: holes at 0.1 of full light, no margin added to the holes
-    (2 projector px more kept 0.007-0.02 less scene light and removed no more backscatter).
+    (2 projector px more kept 0.007-0.02 less scene light and removed no more backscatter), and
+    with ``dim`` or ``pulse`` and a tracker each hole's light set for its own particle
+    (``levels="adaptive"``, :class:`~antiscatter.levels.HoleLevels`; ``dim_level`` is then the most
+    a hole gives; not with depth probing, whose verdicts are read against ``dim_level``).
     """
 
     detector: str | None = "contrast"
@@ -175,8 +182,11 @@ class TwinRun:
     dim_level: float = 0.1
     flash_level: float = 0.25
     margin_px: float = 0.0
+    levels: str = "adaptive"
 
     def __post_init__(self) -> None:
+        if self.levels not in LEVELS:
+            raise ValueError(f"levels: got {self.levels!r}, allowed {', '.join(LEVELS)}")
         if self.strategy not in STRATEGIES:
             raise ValueError(f"strategy: got {self.strategy!r}, allowed {', '.join(STRATEGIES)}")
         if self.mapping not in MAPPINGS:
@@ -211,18 +221,25 @@ def backscatter_weight(scene: Any, geometry: "TwinGeometry", particles: dict[str
 
 def _holes_pattern(holes: Detections, run: TwinRun, *, size: tuple[int, int], mapping: np.ndarray,
                    buffer: np.ndarray, segments: DepthProbe | None = None,
-                   probes: Mapping | None = None) -> np.ndarray:
+                   probes: Mapping | None = None, levels: HoleLevels | None = None,
+                   lifted: bool = False) -> np.ndarray:
     """The projector pattern for ``holes`` (camera pixels) under the run's mapping; float 0..1.
 
     segments: draw each hole along its particle's epipolar segment -- over ``probes``' interval
     where given, over the whole near..far range otherwise -- instead of at ``mapping``.
+    levels: each hole's own light (dim holes, or pulsed ones while the camera exposes:
+    ``lifted``); None: ``dim_level`` for all.
     """
+    dim = run.strategy == "dim" or lifted
     if segments is not None:
         pattern = segments.render(holes, probes or {}, size=size, margin=run.margin_px, out=buffer)
+    elif dim and levels is not None:
+        return render_pattern(holes, size=size, mapping=mapping, margin=run.margin_px, out=buffer,
+                              hole=levels.grey(holes.track_ids, len(holes))).astype(np.float32) / 255.0
     else:
         pattern = render_pattern(holes, size=size, mapping=mapping, margin=run.margin_px, out=buffer)
     light = pattern.astype(np.float32) / 255.0
-    if run.strategy == "dim":
+    if dim:
         np.maximum(light, run.dim_level, out=light)
     return light
 
@@ -249,6 +266,8 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
         segments = DepthProbe(calibration.mapping_at if calibration is not None else geometry.plane_mapping,
                               near_m=geometry.near_m, far_m=geometry.far_m, dim_level=run.dim_level)
     probe = segments if run.mapping == "probe" else None
+    levels = (HoleLevels(run.dim_level) if run.levels == "adaptive" and run.strategy in ("dim", "pulse")
+              and tracker is not None and probe is None else None)
     shown_probes: Mapping = {}  # the intervals the pattern on during the last exposure gave each track
     shown_ids = None  # the tracks whose holes were on during the last exposure
     pw, ph = geometry.projector_size
@@ -271,7 +290,8 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
     displayed = full  # the lamp is fully on until the first pattern is ready
     queue: list[tuple[float, np.ndarray]] = []  # (time the pattern goes on, pattern)
     buffer = np.empty((ph, pw), np.uint8)
-    drawn = {"size": geometry.projector_size, "mapping": camera_mapping, "buffer": buffer, "segments": segments}
+    drawn = {"size": geometry.projector_size, "mapping": camera_mapping, "buffer": buffer, "segments": segments,
+             "levels": levels}
     background_map = geometry.plane_mapping(geometry.background_m)
     inverse_bg = np.linalg.inv(background_map)
     lit_area = cv2.warpPerspective(full, inverse_bg, geometry.camera_size, flags=cv2.INTER_NEAREST,
@@ -294,6 +314,8 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
         on_at = math.ceil(ready / sub_s - 1e-9) * sub_s
         if tracker is not None:
             tracks = tracker.update(found, t0 + geometry.exposure_s / 2, unlit=shown_ids)
+            if levels is not None:
+                levels.update(found, tracks.detection_ids, shown_ids, tracks.ids)
             if probe is not None:
                 seen = Detections(found.centres, found.radii, found.scores, tracks.detection_ids)
                 coasting = tracks.confirmed & (tracks.misses > 0)
@@ -306,7 +328,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
             if run.predict and run.per_refresh:
                 return on_at, tracker.snapshot()
             holes = tracker.holes(on_at + sub_s / 2 if run.predict else t0 + geometry.exposure_s / 2)
-            return on_at, _Fixed(_holes_pattern(holes, run, **drawn), holes.track_ids)
+            return on_at, _Fixed(_holes_pattern(holes, run, **drawn), holes.track_ids, holes)
         return on_at, _holes_pattern(found, run, **drawn)
 
     for k in range(frames):
@@ -334,12 +356,13 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                 shown_ids = (None if run.strategy == "flash" else
                              displayed.prediction.ids if isinstance(displayed, _Probing) else
                              displayed.ids if isinstance(displayed, (Prediction, _Fixed)) else None)
+            pulsed = run.strategy == "pulse" and j == 0 and detector is not None  # the exposure's refresh
             if detector is None:
                 shown = full
             elif run.strategy == "flash" and j == 0:
                 shown = flash  # the detection flash, timed to the exposure
             elif isinstance(displayed, Prediction):  # holes predicted for this refresh's own time
-                shown = _holes_pattern(displayed.holes(ts + sub_s / 2), run, **drawn)
+                shown = _holes_pattern(displayed.holes(ts + sub_s / 2), run, lifted=pulsed, **drawn)
             elif isinstance(displayed, _Probing):
                 at = ts + sub_s / 2 if run.predict else displayed.prediction.timestamp
                 # pulse: only the exposure's refresh needs the probe's half; the others keep the
@@ -347,10 +370,10 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                 shown = _holes_pattern(displayed.prediction.holes(at), run,
                                        probes=displayed.between if j else displayed.probes, **drawn)
             elif isinstance(displayed, _Fixed):
-                shown = displayed.light
+                shown = _holes_pattern(displayed.holes, run, lifted=True, **drawn) if pulsed else displayed.light
             else:
                 shown = displayed
-            if run.strategy == "pulse" and j == 0 and detector is not None:
+            if pulsed and not isinstance(displayed, (Prediction, _Fixed)):  # (those drawn lifted above)
                 shown = np.maximum(shown, run.dim_level)  # holes dimmed only while the camera exposes
             # the scene's state is the frame's mid-exposure; particles keep moving through the
             # frame period, so each refresh lights them where they are in its middle
@@ -401,7 +424,9 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
     return {"detector": "default" if run.detector == "contrast" else run.detector,
             "calibrated": run.detector is not None and run.mapping != "identity",
             "mapping": run.mapping if run.detector else "none", "predict": run.predict,
-            "strategy": run.strategy if run.detector else "none", "dim_level": run.dim_level, "latency_ms": latency_ms,
+            "strategy": run.strategy if run.detector else "none", "dim_level": run.dim_level,
+            "levels": ("adaptive" if levels is not None else "fixed") if run.strategy in ("dim", "pulse") else None,
+            "latency_ms": latency_ms,
             "baseline_m": geometry.baseline_m, "backscatter_removed": removed,
             "scene_light_kept": on_scene / scene_samples if scene_samples else 1.0, "frames": frames,
             "steady_from_frame": settle, "backscatter_removed_steady": removed_steady,
@@ -410,13 +435,16 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
 
 def default_runs(baseline_m: float) -> list[TwinRun]:
     """Full light, seed and default detectors with identity mapping, and the default with the calibrated
-    mapping under each strategy, with and without prediction."""
+    mapping under each strategy, with and without prediction (dim and pulsed holes with prediction also
+    at ``dim_level`` for every hole, against each hole's own level)."""
     runs = [TwinRun(detector=None), TwinRun("seed", "identity"), TwinRun("contrast", "identity"),
             TwinRun("contrast", "calibrated")]
     runs += [TwinRun("contrast", "calibrated", strategy) for strategy in ("dim", "pulse", "flash", "coast")]
     runs += [TwinRun("contrast", "calibrated", "coast", predict=True),
              TwinRun("contrast", "calibrated", "dim", predict=True),
              TwinRun("contrast", "calibrated", "pulse", predict=True),
+             TwinRun("contrast", "calibrated", "dim", predict=True, levels="fixed"),
+             TwinRun("contrast", "calibrated", "pulse", predict=True, levels="fixed"),
              TwinRun("contrast", "calibrated", "flash", predict=True)]
     if baseline_m > 0:
         runs.append(TwinRun("contrast", "range", "flash", predict=True))

@@ -1,0 +1,109 @@
+"""How much light each dim hole leaves its particle: just enough for the camera to see it.
+
+With ``dim`` and ``pulse`` holes a particle is darkened, not blacked out, so the next frame's
+detector still finds it (the closed-loop catch, see ``antiscatter twin``); the light it is
+left is backscatter the lamp still makes.  One level for every hole is set by the faintest
+particle that must stay visible, and most of the backscatter comes from near, bright particles
+that would be seen at a fraction of it.  :class:`HoleLevels` gives each tracked particle its
+own level from what the detector measured of it under its hole: its flux (the detection's
+score, the light it sends back) is proportional to the light it got, so the level that brings
+it to ``target`` is its level times ``target`` over its flux.  The level falls to at most half
+of itself a frame (a noisy flux does not black a hole out at once) and never below ``floor``;
+a particle missed under its own hole gets twice its level back, and that level becomes the
+least it is given from then on (a level it was lost at is not tried again).
+
+A detection that is not under a hole of its own (a new particle, lit in full) starts at
+``target`` over its flux; detectors whose scores are not a flux (NaN, the ``seed`` detector's)
+leave every hole at ``ceiling``.  Ids are the tracker's; the levels of tracks the tracker no
+longer holds are forgotten.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .detections import Detections
+
+__all__ = ["HoleLevels", "MIN_LEVEL", "TARGET_FLUX"]
+
+#: the least light a hole leaves its particle (a fraction of the lamp's): below it a particle's
+#: image is lost in the noise the detector divides up where the lamp gave little
+MIN_LEVEL = 0.02
+
+#: the flux (the ``contrast`` detector's score: grey levels above the background summed over the
+#: particle's working pixels) a dimmed particle is kept at -- a few times the faintest particles
+#: the detector finds (a tenth of its detections score below 8)
+TARGET_FLUX = 40.0
+
+#: the most a level falls in one frame, and what a miss multiplies it by
+FALL = 0.5
+RISE = 2.0
+
+
+class HoleLevels:
+    """Per-track hole levels (fractions of full light) between ``floor`` and ``ceiling``.
+
+    Call :meth:`update` once a frame after the tracker, and :meth:`of` for the holes to draw.
+    """
+
+    def __init__(self, ceiling: float, *, floor: float = MIN_LEVEL, target: float = TARGET_FLUX,
+                 fall: float = FALL, rise: float = RISE) -> None:
+        if not (0 <= floor <= ceiling <= 1):
+            raise ValueError(f"floor, ceiling: got {floor}, {ceiling}; allowed 0 <= floor <= ceiling <= 1")
+        if not (target > 0 and 0 < fall <= 1 and rise >= 1):
+            raise ValueError(f"target, fall, rise: got {target}, {fall}, {rise}; allowed target > 0, "
+                             "0 < fall <= 1, rise >= 1")
+        self.ceiling, self.floor, self.target, self.fall, self.rise = ceiling, floor, target, fall, rise
+        self.ids = np.empty(0, np.int64)  # sorted
+        self.level = np.empty(0)
+        self.least = np.empty(0)  # a level the track was lost at, doubled: the least it gets again
+
+    def _lookup(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(level, least) of each of ``ids``; ``ceiling`` and 0 for ids not known."""
+        if len(self.ids) == 0:
+            return np.full(len(ids), self.ceiling), np.zeros(len(ids))
+        pos = np.minimum(np.searchsorted(self.ids, ids), len(self.ids) - 1)
+        known = self.ids[pos] == ids
+        return np.where(known, self.level[pos], self.ceiling), np.where(known, self.least[pos], 0.0)
+
+    def update(self, found: Detections, detection_ids: np.ndarray, dimmed: np.ndarray | None,
+               alive: np.ndarray) -> None:
+        """Learn from this frame.
+
+        found: its detections (scores: flux, NaN when unknown); detection_ids: (D,) the track of
+        each (-1 none); dimmed: ids of the tracks whose holes were on during its exposure (None:
+        none, e.g. under a flash); alive: every id the tracker holds now.
+        """
+        alive = np.sort(np.asarray(alive, np.int64))
+        level, least = self._lookup(alive)
+        tracked = np.asarray(detection_ids, np.int64) >= 0
+        seen_ids = np.asarray(detection_ids, np.int64)[tracked]
+        dimmed = np.empty(0, np.int64) if dimmed is None else np.asarray(dimmed, np.int64)
+        if len(alive):
+            scores = found.scores[tracked]
+            measured = np.isfinite(scores) & (scores > 0)
+            ids, flux = seen_ids[measured], scores[measured]
+            pos = np.searchsorted(alive, ids)
+            pos_ok = pos < len(alive)
+            pos_ok[pos_ok] = alive[pos[pos_ok]] == ids[pos_ok]
+            ids, flux, pos = ids[pos_ok], flux[pos_ok], pos[pos_ok]
+            current = level[pos]
+            under = np.isin(ids, dimmed)
+            wanted = np.where(under, np.maximum(current * self.target / flux, current * self.fall),
+                              self.target / flux)
+            level[pos] = np.clip(np.maximum(wanted, least[pos]), self.floor, self.ceiling)
+            missed = np.isin(alive, dimmed) & ~np.isin(alive, seen_ids)
+            level[missed] = least[missed] = np.minimum(level[missed] * self.rise, self.ceiling)
+        self.ids, self.level, self.least = alive, level, least
+
+    def of(self, track_ids: np.ndarray | None, count: int) -> np.ndarray:
+        """(count,) levels of the holes of ``track_ids`` (-1 or None: ``ceiling``)."""
+        if track_ids is None:
+            return np.full(count, self.ceiling)
+        ids = np.asarray(track_ids, np.int64)
+        level, _ = self._lookup(ids)
+        return np.where(ids >= 0, level, self.ceiling)
+
+    def grey(self, track_ids: np.ndarray | None, count: int) -> np.ndarray:
+        """:meth:`of` as the projector's grey levels, 0..255."""
+        return np.rint(self.of(track_ids, count) * 255.0).astype(np.uint8)
