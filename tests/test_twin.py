@@ -139,6 +139,10 @@ def test_twin_command_json(cli):
     assert all(required <= set(r) for r in runs)
     assert {r["strategy"] for r in runs} == {"none", "dim", "pulse", "flash", "coast"}
     assert any(r["detector"] == "seed" for r in runs) and any(r["detector"] == "default" for r in runs)
+    # tracked dim and pulsed holes at each particle's own level and at the dim level for all, side by side
+    assert {(r["strategy"], r["levels"]) for r in runs if r["predict"] and r["strategy"] in ("dim", "pulse")} == {
+        (s, lv) for s in ("dim", "pulse") for lv in ("adaptive", "fixed")}
+    assert all(r["levels"] is None for r in runs if r["strategy"] not in ("dim", "pulse"))
     assert all(r["latency_ms"] == 7 and 0 <= r["backscatter_removed"] <= 1 and 0 <= r["scene_light_kept"] <= 1
                for r in runs)
     bad = cli("twin", "--preset", "seed")
