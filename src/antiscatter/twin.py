@@ -259,7 +259,8 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
     tracker = None
     if run.strategy == "coast" or run.predict or run.mapping == "probe":
         from .tracking import Tracker
-        tracker = Tracker(frame_size=geometry.camera_size)  # motion settings scale with the width
+        # motion settings scale with the width; probing draws a new track's hole along its whole line
+        tracker = Tracker(frame_size=geometry.camera_size, flow_holes=run.mapping != "probe")
     # holes along epipolar segments: probed intervals, or the whole range when depth is unknown
     segments = None
     if run.mapping == "probe" or (run.mapping == "range" and geometry.baseline_m > 0):

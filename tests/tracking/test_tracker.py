@@ -161,11 +161,32 @@ def test_prediction_for_constant_velocity_is_near_exact():
 
 
 def test_unconfirmed_particles_get_holes_where_seen():
-    tracker = Tracker(confirm_hits=3)
+    tracker = Tracker(confirm_hits=3, flow_holes=False)
     tracker.update(Detections([[50, 50]], [3.0]), 0.0)
     holes = tracker.holes(0.05)
     np.testing.assert_allclose(holes.centres, [[50, 50]])
     assert holes.radii[0] == pytest.approx(3.0)
+    # with flow_holes (default) and no neighbours to take a flow from: at rest, grown by its uncertainty
+    tracker = Tracker(confirm_hits=3)
+    tracker.update(Detections([[50, 50]], [3.0]), 0.0)
+    holes = tracker.holes(0.05)
+    np.testing.assert_allclose(holes.centres, [[50, 50]])
+    assert holes.radii[0] == pytest.approx(3.0 + 1.25)
+
+
+def test_a_particle_seen_once_has_its_hole_moved_along_its_neighbours_flow():
+    crowd = np.array([[100.0 + 60 * i, 100.0 + 70 * j] for i in range(3) for j in range(3)])
+    for flow_holes, expected_x in ((True, 130.0 + 600 * 2 * DT), (False, 130.0)):
+        tracker = Tracker(flow_holes=flow_holes)
+        for f in range(5):  # nine particles drifting right at 600 px/s, confirmed
+            tracker.update(Detections(crowd + np.array([600.0, 0.0]) * f * DT, np.full(9, 2.0)), f * DT)
+        found = np.vstack([crowd + np.array([600.0, 0.0]) * 5 * DT, [[130.0, 135.0]]])
+        tracks = tracker.update(Detections(found, np.full(10, 2.0)), 5 * DT)  # a newcomer among them
+        new = tracks.detection_ids[-1]
+        holes = tracker.holes(7 * DT)
+        at = int(np.flatnonzero(holes.track_ids == new)[0])
+        assert holes.centres[at, 0] == pytest.approx(expected_x, abs=0.1)  # the neighbours' filtered velocity
+        assert holes.centres[at, 1] == pytest.approx(135.0, abs=1e-6)
 
 
 def test_a_particle_seen_twice_moves_its_hole_before_it_is_confirmed():
