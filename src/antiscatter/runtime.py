@@ -469,11 +469,14 @@ class _Pipeline:
             if self.pulse_level is None:  # dim: each hole at its own level
                 rec.pattern = render_pattern(holes, size=self.projector_size, mapping=self.mapping, margin=margin,
                                              out=buffer, hole=grey)
-            else:  # pulse: dark between exposures, each at its own level while the camera looks
-                rec.pattern = render_pattern(holes, size=self.projector_size, mapping=self.mapping, margin=margin,
-                                             out=buffer)
+            else:  # pulse: each at its own level while the camera looks, dark between exposures
                 rec.exposure = render_pattern(holes, size=self.projector_size, mapping=self.mapping,
                                               margin=margin, out=self.exposure_buffer, hole=grey)
+                if self.pulse_level < 255:  # the same holes, dark: wherever the lifted pattern is not full
+                    rec.pattern = cv2.compare(rec.exposure, 255, cv2.CMP_EQ, dst=buffer)  # 40 us, not a 2nd 460
+                else:
+                    rec.pattern = render_pattern(holes, size=self.projector_size, mapping=self.mapping,
+                                                 margin=margin, out=buffer)
         else:
             rec.pattern = render_pattern(rec.pattern, size=self.projector_size, mapping=self.mapping,
                                          margin=self.config.pattern.margin, out=buffer, hole=self.hole_level)
@@ -533,7 +536,8 @@ class _Pipeline:
                 if rec.exposure is not None and self.light_on:  # probing's halves or the levels, drawn lifted
                     self.pulse_image = exposed = rec.exposure
                 else:
-                    self.pulse_image = exposed = np.maximum(shown, np.uint8(self.pulse_level), out=self._lifted)
+                    # cv2.max: a tenth of np.maximum's time against a scalar (43 against 420 us at 1280x800)
+                    self.pulse_image = exposed = cv2.max(shown, self.pulse_level, dst=self._lifted)
                     self._lifted = self.pulse_image
         if self.probe is not None:  # mode single: the buffer stays intact until the next frame is processed
             self.shown_exposure = exposed if self.light_on else None
