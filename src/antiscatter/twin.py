@@ -316,7 +316,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
         if tracker is not None:
             tracks = tracker.update(found, t0 + geometry.exposure_s / 2, unlit=shown_ids)
             if levels is not None:
-                levels.update(found, tracks.detection_ids, shown_ids, tracks.ids)
+                levels.update(found, tracks.detection_ids, shown_ids, tracks.ids, tracks.ids[tracks.confirmed])
             if probe is not None:
                 seen = Detections(found.centres, found.radii, found.scores, tracks.detection_ids)
                 coasting = tracks.confirmed & (tracks.misses > 0)
