@@ -697,8 +697,10 @@ def _twin(args: argparse.Namespace) -> int:
         result.pop("series")
         runs.append(result)
         if not args.json:
+            levels = f"{result['levels']} levels" if result["levels"] else ""  # dim and pulse only
             print(f"{result['detector'] or 'full light':<10} {result['mapping']:<11} {result['strategy']:<6} "
-                  f"predict {str(result['predict']).lower():<5} {(result['levels'] or '') + (' levels' if result['levels'] else ''):<15} removed {result['backscatter_removed']:.3f}  "
+                  f"predict {str(result['predict']).lower():<5} {levels:<15} "
+                  f"removed {result['backscatter_removed']:.3f}  "
                   f"kept {result['scene_light_kept']:.3f}  (from frame {result['steady_from_frame']}: "
                   f"{result['backscatter_removed_steady']:.3f} / {result['scene_light_kept_steady']:.3f})")
     if args.plot:

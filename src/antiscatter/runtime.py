@@ -408,7 +408,8 @@ class _Pipeline:
             tracks = self.tracker.update(detections, captured, unlit=self.unlit_ids)
             track_ids = tracks.detection_ids
             if self.levels is not None:  # how bright each particle came back under its hole
-                self.levels.update(detections, track_ids, self.unlit_ids, tracks.ids, tracks.ids[tracks.confirmed])
+                self.levels.update(detections, track_ids, self.unlit_ids, tracks.ids,
+                                   tracks.ids[tracks.confirmed])
             prediction = self.tracker.snapshot()
             if tc.predict:
                 latency = tc.latency_ms / 1e3 if tc.latency_ms >= 0 else self.latency_estimate

@@ -132,7 +132,8 @@ class Tracker:
         its neighbours' flow (``flow_neighbours``; at rest while there are fewer) -- as a tracked
         one's is along its own, and grown by its uncertainty as theirs (:meth:`holes`).  Default
         True.  A near particle new to the view moves several pixels before its hole goes on: in the
-        twin (co-located, 5 ms, mixed, pulsed holes at each particle's own level) removed 0.885 ->
+        twin (co-located, 5 ms, mixed, pulsed holes at each particle's own level -- every track's
+        then, confirmed or not, see antiscatter.levels) removed 0.885 ->
         0.887 over scene seeds 1-12 (from frame 20: 0.926 -> 0.932), 0.880 -> 0.888 over 13-24,
         dim holes 0.862 -> 0.864 and 0.853 -> 0.864, scene light 0.001-0.002 less; bubbles 0.941
         -> 0.950, sand 0.776 -> 0.785, textured 0.875 -> 0.877, snow 0.946 -> 0.944 (seeds 1-6).
