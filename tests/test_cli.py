@@ -342,12 +342,14 @@ def test_adaptive_levels_give_each_tracked_hole_the_light_its_particle_needs(tmp
     # projector.  These files do not see the light: each particle comes back as bright under its hole
     # as lit, far above what it needs, so once its track is confirmed (third sighting) its hole's
     # level halves each frame -- the most it may fall -- down to the least level, 0.02 (5)
-    adaptive = holes()
+    adaptive = holes("--levels", "adaptive")
     assert [int(p[267, 240 + 24 * k]) for k, p in enumerate(adaptive)][:7] == [51, 51, 26, 13, 6, 5, 5]
     assert [int(p[533, 960]) for p in adaptive[3:7]] == [51, 51, 26, 13]  # its own, from frame 3
     fixed = holes("--levels", "fixed")
     assert all(p[267, 240 + 24 * k] == 51 for k, p in enumerate(fixed))
-    seed = holes("--detector", "seed")  # its scores are no flux: the dim level for every hole
+    replay = holes()  # auto: adaptive only with the camera -- these files never saw the light
+    assert all(p[267, 240 + 24 * k] == 51 for k, p in enumerate(replay))
+    seed = holes("--detector", "seed", "--levels", "adaptive")  # its scores are no flux: the dim level
     assert all(p[267, 240 + 24 * k] == 51 for k, p in enumerate(seed))
     bad = cli("run", str(frames), "--strategy", strategy, "--track", "--min-level", "2", "--output", "none")
     assert bad.code == 2 and "light.min_level: got 2.0, allowed a number 0..1" in bad.err
@@ -476,6 +478,8 @@ def test_compensation_tells_the_detector_the_light_of_the_last_pattern(tmp_path,
     # dark in the light map, the rest lit
     assert seen[0][20, 15] == 51 and seen[0][100 // 2 - 10, 150 // 2] == 255
     assert load_config().light.compensate is False  # replays never saw the light
+    assert load_config().light.levels == "fixed"  # nor adapted hole levels to it
+    assert load_config(overrides={"source": {"spec": "camera"}}).light.levels == "adaptive"
     assert load_config(overrides={"source": {"spec": "camera"}}).light.compensate is False  # no mapping known
     mapped = {"source": {"spec": "camera"}, "pattern": {"mapping": [[8, 0, 0], [0, 6.67, 0], [0, 0, 1]]}}
     assert load_config(overrides=mapped).light.compensate is True

@@ -91,8 +91,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "particles that went dark (turns --track on)")
     g.add_argument("--dim-level", type=float, help="light left in dim holes (pulse: while the camera exposes), 0..1 (default 0.1)")
     g.add_argument("--flash-level", type=float, help="brightness of the detection flash, 0..1 (default 0.25)")
-    g.add_argument("--levels", choices=("adaptive", "fixed"),
-                   help="adaptive (default): with dim or pulse and tracking, each hole leaves its particle just "
+    g.add_argument("--levels", choices=("auto", "adaptive", "fixed"),
+                   help="auto (default): adaptive with the camera, else fixed (files and the simulator do not see "
+                        "the light); adaptive: with dim or pulse and tracking, each hole leaves its particle just "
                         "the light the detector needs to see it, between --min-level and --dim-level; fixed: "
                         "--dim-level for every hole")
     g.add_argument("--min-level", type=float, help="the least light an adaptive hole leaves, 0..1 (default 0.02)")

@@ -234,13 +234,15 @@ class LightConfig:
         judged by the next exposures: needs strategy dim or pulse, tracking, mode single and a calibration
         with a baseline, i.e. measured at two distances or more; see antiscatter.probe).
     near_m, far_m: the working distances a particle may be at (probe).
-    levels: ``adaptive`` (default) -- with ``dim`` or ``pulse``, tracking on and no depth probing,
-        each hole leaves its own particle just the light it needs to stay visible, from the
-        detector's flux of it under its hole (:class:`~antiscatter.levels.HoleLevels`), between
-        ``min_level`` and ``dim_level``: most of the backscatter comes from near, bright particles
-        that are seen at a fraction of what the faintest need.  ``fixed``: ``dim_level`` for every
-        hole.  Probing keeps ``dim_level`` (its verdicts are read against it); so do detectors
-        whose scores are not a flux (``seed``).
+    levels: ``auto`` (default: ``adaptive`` with the camera as source, ``fixed`` otherwise --
+        files and the simulator never saw the light, so every particle would come back as bright
+        under its hole as lit and every hole fall to ``min_level``), ``adaptive`` -- with ``dim``
+        or ``pulse``, tracking on and no depth probing, each hole leaves its own particle just the
+        light it needs to stay visible, from the detector's flux of it under its hole
+        (:class:`~antiscatter.levels.HoleLevels`), between ``min_level`` and ``dim_level``: most of
+        the backscatter comes from near, bright particles that are seen at a fraction of what the
+        faintest need -- or ``fixed``: ``dim_level`` for every hole.  Probing keeps ``dim_level``
+        (its verdicts are read against it); so do detectors whose scores are not a flux (``seed``).
     min_level: the least light an adaptive hole leaves its particle, 0..1 (capped at ``dim_level``).
     """
 
@@ -251,12 +253,12 @@ class LightConfig:
     depth: str = "auto"
     near_m: float = 0.3
     far_m: float = 3.0
-    levels: str = "adaptive"
+    levels: str = "auto"
     min_level: float = MIN_LEVEL
 
     def __post_init__(self) -> None:
-        if self.levels not in ("adaptive", "fixed"):
-            raise ValueError(f"levels: got {self.levels!r}, allowed adaptive, fixed")
+        if self.levels not in ("auto", "adaptive", "fixed"):
+            raise ValueError(f"levels: got {self.levels!r}, allowed auto, adaptive, fixed")
         if self.strategy not in ("auto", *STRATEGIES):
             raise ValueError(f"strategy: got {self.strategy!r}, allowed auto, {', '.join(STRATEGIES)}")
         if self.depth not in ("auto", "fixed", "probe"):
@@ -475,6 +477,8 @@ def load_config(path: str | Path | None = None, overrides: dict[str, dict[str, A
         probe = (light.strategy in ("dim", "pulse") and sections["run"].mode == "single"
                  and _has_baseline(sections["pattern"].calibration))
         light = dataclasses.replace(light, depth="probe" if probe else "fixed")
+    if light.levels == "auto":  # only where the camera sees the light
+        light = dataclasses.replace(light, levels="adaptive" if camera else "fixed")
     if light.compensate is None:  # only with a real mapping: a guessed one would put the light map wrong
         light = dataclasses.replace(light, compensate=camera and bool(sections["pattern"].mapping))
     if light.strategy in ("flash", "pulse") and sections["run"].mode != "single":
