@@ -88,3 +88,12 @@ def test_holes_drawn_at_their_own_levels_the_brighter_where_they_overlap():
     assert pattern[0, 0] == 255
     with pytest.raises(ValueError, match="3 levels for 2 detections"):
         render_pattern(holes[np.array([0, 1])], size=(400, 300), hole=np.array([1, 2, 3]))
+
+
+def test_ids_the_tracker_no_longer_holds_touch_no_other_track():
+    # the holes of the last exposure may belong to tracks deleted since: they are nobody's miss
+    levels = HoleLevels(0.1, floor=0.02, target=40.0)
+    found, ids = seen([4000.0], [1])
+    levels.update(found, ids, dimmed=np.array([1, 999]), alive=np.array([1, 2]), confirmed=np.array([1, 2, 998]))
+    assert levels.of(np.array([1, 2]), 2) == pytest.approx([0.05, 0.1])  # 2: not under a hole, not missed
+    assert levels.least.tolist() == [0.0, 0.0]

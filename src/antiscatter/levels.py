@@ -84,25 +84,28 @@ class HoleLevels:
         """
         alive = np.sort(np.asarray(alive, np.int64))
         level, least = self._lookup(alive)
-        tracked = np.asarray(detection_ids, np.int64) >= 0
-        seen_ids = np.asarray(detection_ids, np.int64)[tracked]
-        dimmed = np.empty(0, np.int64) if dimmed is None else np.asarray(dimmed, np.int64)
+        ids = np.asarray(detection_ids, np.int64)
+        tracked = ids >= 0
         if len(alive):
-            scores = found.scores[tracked]
-            measured = np.isfinite(scores) & (scores > 0)
-            ids, flux = seen_ids[measured], scores[measured]
-            pos = np.searchsorted(alive, ids)
-            pos_ok = pos < len(alive)
-            pos_ok[pos_ok] = alive[pos[pos_ok]] == ids[pos_ok]
-            ids, flux, pos = ids[pos_ok], flux[pos_ok], pos[pos_ok]
+            # every track by its row in ``alive`` (sorted), found once
+            seen = _rows(alive, ids[tracked])
+            under = _rows(alive, np.empty(0, np.int64) if dimmed is None else np.asarray(dimmed, np.int64))
+            was_under = np.zeros(len(alive), bool)
+            was_under[under[under >= 0]] = True
+            flux = found.scores[tracked]
+            measured = (seen >= 0) & np.isfinite(flux) & (flux > 0)
+            pos, flux = seen[measured], flux[measured]
             current = level[pos]
-            under = np.isin(ids, dimmed)
-            wanted = np.where(under, np.maximum(current * self.target / flux, current * self.fall),
+            wanted = np.where(was_under[pos], np.maximum(current * self.target / flux, current * self.fall),
                               self.target / flux)
             level[pos] = np.clip(np.maximum(wanted, least[pos]), self.floor, self.ceiling)
-            missed = np.isin(alive, dimmed) & ~np.isin(alive, seen_ids)
+            missed = was_under.copy()
+            missed[seen[seen >= 0]] = False
             level[missed] = least[missed] = np.minimum(level[missed] * self.rise, self.ceiling)
-            level[~np.isin(alive, np.asarray(confirmed, np.int64))] = self.ceiling  # not yet confirmed
+            tentative = np.ones(len(alive), bool)
+            sure = _rows(alive, np.asarray(confirmed, np.int64))
+            tentative[sure[sure >= 0]] = False
+            level[tentative] = self.ceiling  # not yet confirmed
         self.ids, self.level, self.least = alive, level, least
 
     def of(self, track_ids: np.ndarray | None, count: int) -> np.ndarray:
@@ -116,3 +119,11 @@ class HoleLevels:
     def grey(self, track_ids: np.ndarray | None, count: int) -> np.ndarray:
         """:meth:`of` as the projector's grey levels, 0..255."""
         return np.rint(self.of(track_ids, count) * 255.0).astype(np.uint8)
+
+
+def _rows(ordered: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """The row of each of ``ids`` in the ascending ``ordered`` (-1 where it is not there)."""
+    if len(ordered) == 0 or len(ids) == 0:
+        return np.full(len(ids), -1, np.intp)
+    at = np.minimum(np.searchsorted(ordered, ids), len(ordered) - 1)
+    return np.where(ordered[at] == ids, at, -1)
