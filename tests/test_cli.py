@@ -617,21 +617,21 @@ def test_the_vehicles_default_configuration_runs_on_a_live_source(tmp_path):
         rows = list(csv.DictReader((tmp_path / "d.csv").open()))
         assert len(rows) >= 30 and all(int(r["track_id"]) > 0 for r in rows)
         assert len({r["track_id"] for r in rows}) <= 6  # two particles, few identities
-        level, least = round(config.light.dim_level * 255), round(config.light.min_level * 255)
+        least = round(config.light.min_level * 255)
         last = cv2.imread(str(tmp_path / "p" / "18.png"), cv2.IMREAD_UNCHANGED)
-        # each hole at its own level without probing: this camera's particles come back as bright
-        # under their holes as lit (it does not see the light), so every hole is at the least level
-        assert last.min() == (0 if pulsed else level if probing else least)
+        # each hole at its own level: this camera's particles come back as bright under their holes
+        # as lit (it does not see the light), so once confirmed every hole is at the least level
+        assert last.min() == (0 if pulsed else least)
         if not pulsed:
             assert not list((tmp_path / "p").glob("flash-*.png"))  # dim: the pattern alone
             continue
-        # each capture under the last pattern with its holes lifted to the dim level; probing, under
+        # each capture under the last pattern with its holes lifted to their levels; probing, under
         # the probes' halves of the intervals that the pattern keeps dark between exposures
         pulse = cv2.imread(str(tmp_path / "p" / "flash-19.png"), cv2.IMREAD_UNCHANGED)
-        assert set(np.unique(pulse)) == {level if probing else least, 255}
+        assert set(np.unique(pulse)) == {least, 255}
         if probing:
             # (the holes are discs bigger than the intervals here: each half's disc sits at the half's
             # middle, a few pixels from the whole interval's)
-            assert (last[pulse == level] == 0).mean() > 0.8 and (pulse == level).sum() <= (last == 0).sum()
+            assert (last[pulse == least] == 0).mean() > 0.8 and (pulse == least).sum() <= (last == 0).sum()
         else:
             assert np.array_equal(pulse, np.maximum(last, least))

@@ -113,7 +113,7 @@ def test_probing_under_pulse_keeps_the_whole_interval_dark_between_exposures():
     # at 12 cm the particle's depth is found by bisection; while a probe covers the half that does
     # not hold it, dim holes leave it fully lit, pulsed ones dark in the refresh the camera skips
     runs = {strategy: simulate_loop(TwinRun("contrast", "probe", strategy, predict=True, margin_px=2.0,
-                                            dim_level=0.2),
+                                            dim_level=0.2, levels="fixed"),
                                     geometry=TwinGeometry(camera_size=SIZE, baseline_m=0.12), frames=30,
                                     latency_ms=5, scene=one_static_particle())
             for strategy in ("dim", "pulse")}
@@ -123,6 +123,14 @@ def test_probing_under_pulse_keeps_the_whole_interval_dark_between_exposures():
     assert probing and min(probing) >= 0.5 - 1e-6  # ... and pulsed, it is dark in the refresh the camera skips
     assert dim[10:] == pytest.approx([0.8] * 20, abs=1e-6) and pulse[10:] == pytest.approx([0.9] * 20, abs=1e-6)
     assert all(p >= d + 0.1 - 1e-6 for d, p in zip(dim[1:], pulse[1:]))
+    # each settled hole at its own particle's level (this bright bubble needs a few per cent of the
+    # lamp): the probe's verdicts say when it had its hole's light
+    for strategy, share in (("dim", 1.0), ("pulse", 0.5)):
+        own = simulate_loop(TwinRun("contrast", "probe", strategy, predict=True, margin_px=2.0, dim_level=0.2),
+                            geometry=TwinGeometry(camera_size=SIZE, baseline_m=0.12), frames=30, latency_ms=5,
+                            scene=one_static_particle())
+        removed = [f["removed"] for f in own["series"][10:]]
+        assert min(removed) > 1 - 0.2 * share + 0.05 and np.median(removed) >= 1 - 0.05 * share, strategy
 
 
 def test_full_light_run_is_the_reference(cli):

@@ -237,12 +237,12 @@ class LightConfig:
     levels: ``auto`` (default: ``adaptive`` with the camera as source, ``fixed`` otherwise --
         files and the simulator never saw the light, so every particle would come back as bright
         under its hole as lit and every hole fall to ``min_level``), ``adaptive`` -- with ``dim``
-        or ``pulse``, tracking on and no depth probing, each hole leaves its own particle just the
+        or ``pulse`` and tracking on, each hole (or depth probe) leaves its own particle just the
         light it needs to stay visible, from the detector's flux of it under its hole
         (:class:`~antiscatter.levels.HoleLevels`), between ``min_level`` and ``dim_level``: most of
         the backscatter comes from near, bright particles that are seen at a fraction of what the
-        faintest need -- or ``fixed``: ``dim_level`` for every hole.  Probing keeps ``dim_level``
-        (its verdicts are read against it); so do detectors whose scores are not a flux (``seed``).
+        faintest need -- or ``fixed``: ``dim_level`` for every hole.  Detectors whose scores are
+        not a flux (``seed``) keep ``dim_level``.
     min_level: the least light an adaptive hole leaves its particle, 0..1 (capped at ``dim_level``).
     """
 

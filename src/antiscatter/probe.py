@@ -211,6 +211,9 @@ class DepthProbe:
         # whether its search has started again once (restarted)
         self._ids = np.empty(0, np.int64)
         self._state = np.empty((0, 6), np.float64)
+        #: the tracks the last exposure found dimmed under their own probe or hole, or vanished
+        #: under it: the ones whose particle had its hole's light (for HoleLevels)
+        self.dimmed = np.empty(0, np.int64)
 
     # ----------------------------------------------------------------- geometry
     def span_px(self, centres: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -298,6 +301,7 @@ class DepthProbe:
                           np.where(miss & from_lo & ~to_hi, np.maximum(lo, b), np.where(twice, self.w_far, lo)))
         hi_now = np.where(hit, dim_hi,
                           np.where(miss & ~from_lo & to_hi, np.minimum(hi, a), np.where(twice, self.w_near, hi)))
+        self.dimmed = ids[hit]
         lit_now = np.where(~judged & (lit <= 0), scores, np.where(hit, lit, 0.7 * lit + 0.3 * scores))
         missed_now = np.where(hit | again, 0.0, np.where(whole, missed + 1, missed))
         self._state[rows] = np.stack([lo_now, hi_now, lit_now, held, missed_now, np.maximum(restarted, again)], 1)
@@ -327,6 +331,7 @@ class DepthProbe:
             self._state[rows, _LO] = lo
             self._state[rows, _HI] = hi
             self._state[rows, _MISSED] = 0.0
+            self.dimmed = np.concatenate([self.dimmed, coasting[keep]])
 
     #: points along each interval at which the exposure's light is read (:meth:`_widen`)
     SAMPLES = 48
@@ -446,8 +451,11 @@ class DepthProbe:
 
     # ---------------------------------------------------------------- rendering
     def render(self, holes: Detections, probes: Mapping[int, tuple[float, float]], *, size: tuple[int, int],
-               margin: float = 0.0, out: np.ndarray | None = None, hole: int = 0) -> np.ndarray:
+               margin: float = 0.0, out: np.ndarray | None = None, hole: int | np.ndarray = 0) -> np.ndarray:
         """The pattern: each hole drawn as a thick segment over its probe interval (uint8, 255 = light).
+
+        hole: the segments' grey level, or one per hole ((N,), :class:`~antiscatter.levels.HoleLevels`;
+        where they cross, the brighter wins).
 
         A thick line's round caps reach half its thickness past its ends.  A probe -- the part
         of its track's interval that the next exposure judges -- is drawn that much shorter at
@@ -481,9 +489,12 @@ class DepthProbe:
             inset = np.where(probed, np.minimum(thickness / 2.0, length / 2.0), 0.0)
             step = (b - a) * (inset / np.maximum(length, 1e-9))[:, None]
             a, b = a + step, b - step
-        for (ax, ay), (bx, by), t in zip((a * 16).round().astype(np.int64).tolist(),
-                                         (b * 16).round().astype(np.int64).tolist(), thickness.tolist()):
-            cv2.line(out, (ax, ay), (bx, by), hole, t, cv2.LINE_8, 4)
+        grey = np.broadcast_to(np.asarray(hole, np.int64), (len(holes),))
+        order = np.argsort(grey, kind="stable")  # the brightest drawn last
+        for (ax, ay), (bx, by), t, g in zip((a[order] * 16).round().astype(np.int64).tolist(),
+                                            (b[order] * 16).round().astype(np.int64).tolist(),
+                                            thickness[order].tolist(), grey[order].tolist()):
+            cv2.line(out, (ax, ay), (bx, by), g, t, cv2.LINE_8, 4)
         return out
 
 

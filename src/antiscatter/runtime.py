@@ -350,7 +350,7 @@ class _Pipeline:
         # each hole's own light (dim, or pulse while the camera exposes): tracked, not probed
         self.levels = (HoleLevels(light.dim_level, floor=min(light.min_level, light.dim_level))
                        if light.levels == "adaptive" and light.strategy in ("dim", "pulse")
-                       and tracker is not None and self.probe is None else None)
+                       and tracker is not None else None)
         self.full_image = np.full((height, width), 255, np.uint8)
         self.last_pattern: np.ndarray | None = None  # the pattern the lamp shows between exposures
         self.pulse_image: np.ndarray | None = None  # the last pattern, lifted (pulse)
@@ -407,7 +407,7 @@ class _Pipeline:
                         else frame.index * self.frame_interval)
             tracks = self.tracker.update(detections, captured, unlit=self.unlit_ids)
             track_ids = tracks.detection_ids
-            if self.levels is not None:  # how bright each particle came back under its hole
+            if self.levels is not None and self.probe is None:  # how bright each came back under its hole
                 self.levels.update(detections, track_ids, self.unlit_ids, tracks.ids,
                                    tracks.ids[tracks.confirmed])
             prediction = self.tracker.snapshot()
@@ -431,6 +431,9 @@ class _Pipeline:
                 self.probe.observe(seen, self.shown_probes, tracks.ids[coasting], exposure=self.shown_exposure,
                                    coasting_centres=tracks.centres[coasting])
                 self.probe.forget(tracks.ids)
+                if self.levels is not None:  # under its own hole or probe: what its verdict found it dimmed by
+                    self.levels.update(detections, track_ids, self.probe.dimmed, tracks.ids,
+                                       tracks.ids[tracks.confirmed])
                 probes = self.probe.probes(holes)
                 if self.pulse_level is not None:
                     intervals = self.probe.intervals()
@@ -457,13 +460,17 @@ class _Pipeline:
         rec.hole_ids = rec.pattern.track_ids
         if self.probe is not None:
             holes, margin = rec.pattern, self.config.pattern.margin
+            grey = self.levels.grey(holes.track_ids, len(holes)) if self.levels is not None else None
             # pulse: between exposures each track's whole interval is dark; the probe's half is
-            # only needed while the camera looks, lifted to the dim level
+            # only needed while the camera looks, lifted to the dim level (or each track's own)
             rec.pattern = self.probe.render(holes, rec.probes if rec.intervals is None else rec.intervals,
-                                            size=self.projector_size, margin=margin, out=buffer, hole=self.hole_level)
+                                            size=self.projector_size, margin=margin, out=buffer,
+                                            hole=grey if grey is not None and rec.intervals is None
+                                            else self.hole_level)
             if rec.intervals is not None:
                 rec.exposure = self.probe.render(holes, rec.probes, size=self.projector_size, margin=margin,
-                                                 out=self.exposure_buffer, hole=self.pulse_level)
+                                                 out=self.exposure_buffer,
+                                                 hole=self.pulse_level if grey is None else grey)
         elif self.levels is not None:
             holes, margin = rec.pattern, self.config.pattern.margin
             grey = self.levels.grey(holes.track_ids, len(holes))

@@ -171,7 +171,8 @@ class TwinRun:
     (2 projector px more kept 0.007-0.02 less scene light and removed no more backscatter), and
     with ``dim`` or ``pulse`` and a tracker each hole's light set for its own particle
     (``levels="adaptive"``, :class:`~antiscatter.levels.HoleLevels`; ``dim_level`` is then the most
-    a hole gives; not with depth probing, whose verdicts are read against ``dim_level``).
+    a hole gives; with depth probing, a track is taken to have had its level when its verdict
+    found it dimmed under its own probe or hole).
     """
 
     detector: str | None = "contrast"
@@ -231,6 +232,9 @@ def _holes_pattern(holes: Detections, run: TwinRun, *, size: tuple[int, int], ma
     ``lifted``); None: ``dim_level`` for all.
     """
     dim = run.strategy == "dim" or lifted
+    if segments is not None and dim and levels is not None:
+        return segments.render(holes, probes or {}, size=size, margin=run.margin_px, out=buffer,
+                               hole=levels.grey(holes.track_ids, len(holes))).astype(np.float32) / 255.0
     if segments is not None:
         pattern = segments.render(holes, probes or {}, size=size, margin=run.margin_px, out=buffer)
     elif dim and levels is not None:
@@ -268,7 +272,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                               near_m=geometry.near_m, far_m=geometry.far_m, dim_level=run.dim_level)
     probe = segments if run.mapping == "probe" else None
     levels = (HoleLevels(run.dim_level) if run.levels == "adaptive" and run.strategy in ("dim", "pulse")
-              and tracker is not None and probe is None else None)
+              and tracker is not None else None)
     shown_probes: Mapping = {}  # the intervals the pattern on during the last exposure gave each track
     shown_ids = None  # the tracks whose holes were on during the last exposure
     pw, ph = geometry.projector_size
@@ -315,7 +319,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
         on_at = math.ceil(ready / sub_s - 1e-9) * sub_s
         if tracker is not None:
             tracks = tracker.update(found, t0 + geometry.exposure_s / 2, unlit=shown_ids)
-            if levels is not None:
+            if levels is not None and probe is None:
                 levels.update(found, tracks.detection_ids, shown_ids, tracks.ids, tracks.ids[tracks.confirmed])
             if probe is not None:
                 seen = Detections(found.centres, found.radii, found.scores, tracks.detection_ids)
@@ -323,6 +327,9 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                 probe.observe(seen, shown_probes, tracks.ids[coasting],
                               exposure=exposure_pattern, coasting_centres=tracks.centres[coasting])
                 probe.forget(tracks.ids)
+                if levels is not None:  # under its own hole or probe: what its verdict found it dimmed by
+                    levels.update(found, tracks.detection_ids, probe.dimmed, tracks.ids,
+                                  tracks.ids[tracks.confirmed])
                 snapshot = tracker.snapshot()
                 probes = probe.probes(snapshot.holes(t0))
                 return on_at, _Probing(snapshot, probes, probe.intervals() if run.strategy == "pulse" else probes)
@@ -368,13 +375,13 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                 at = ts + sub_s / 2 if run.predict else displayed.prediction.timestamp
                 # pulse: only the exposure's refresh needs the probe's half; the others keep the
                 # whole interval that may hold the particle dark
-                shown = _holes_pattern(displayed.prediction.holes(at), run,
+                shown = _holes_pattern(displayed.prediction.holes(at), run, lifted=pulsed,
                                        probes=displayed.between if j else displayed.probes, **drawn)
             elif isinstance(displayed, _Fixed):
                 shown = _holes_pattern(displayed.holes, run, lifted=True, **drawn) if pulsed else displayed.light
             else:
                 shown = displayed
-            if pulsed and not isinstance(displayed, (Prediction, _Fixed)):  # (those drawn lifted above)
+            if pulsed and not isinstance(displayed, (Prediction, _Fixed, _Probing)):  # (those drawn lifted above)
                 shown = np.maximum(shown, run.dim_level)  # holes dimmed only while the camera exposes
             # the scene's state is the frame's mid-exposure; particles keep moving through the
             # frame period, so each refresh lights them where they are in its middle
