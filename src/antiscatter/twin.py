@@ -232,18 +232,13 @@ def _holes_pattern(holes: Detections, run: TwinRun, *, size: tuple[int, int], ma
     ``lifted``); None: ``dim_level`` for all.
     """
     dim = run.strategy == "dim" or lifted
-    if segments is not None and dim and levels is not None:
-        return segments.render(holes, probes or {}, size=size, margin=run.margin_px, out=buffer,
-                               hole=levels.grey(holes.track_ids, len(holes))).astype(np.float32) / 255.0
+    own = levels.grey(holes.track_ids, len(holes)) if dim and levels is not None else 0
     if segments is not None:
-        pattern = segments.render(holes, probes or {}, size=size, margin=run.margin_px, out=buffer)
-    elif dim and levels is not None:
-        return render_pattern(holes, size=size, mapping=mapping, margin=run.margin_px, out=buffer,
-                              hole=levels.grey(holes.track_ids, len(holes))).astype(np.float32) / 255.0
+        pattern = segments.render(holes, probes or {}, size=size, margin=run.margin_px, out=buffer, hole=own)
     else:
-        pattern = render_pattern(holes, size=size, mapping=mapping, margin=run.margin_px, out=buffer)
+        pattern = render_pattern(holes, size=size, mapping=mapping, margin=run.margin_px, out=buffer, hole=own)
     light = pattern.astype(np.float32) / 255.0
-    if dim:
+    if dim and levels is None:
         np.maximum(light, run.dim_level, out=light)
     return light
 
