@@ -32,6 +32,8 @@ def _detector_help() -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .levels import LEVELS
+
     parser = _Parser(
         prog="antiscatter",
         description="Backscatter-avoiding underwater lighting: find the bright particles in each "
@@ -91,7 +93,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "particles that went dark (turns --track on)")
     g.add_argument("--dim-level", type=float, help="light left in dim holes (pulse: while the camera exposes), 0..1 (default 0.1)")
     g.add_argument("--flash-level", type=float, help="brightness of the detection flash, 0..1 (default 0.25)")
-    g.add_argument("--levels", choices=("auto", "adaptive", "fixed"),
+    g.add_argument("--levels", choices=("auto", *LEVELS),
                    help="auto (default): adaptive with the camera, else fixed (files and the simulator do not see "
                         "the light); adaptive: with dim or pulse and tracking, each hole leaves its particle just "
                         "the light the detector needs to see it, between --min-level and --dim-level; fixed: "

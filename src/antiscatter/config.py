@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from .errors import UsageError
-from .levels import MIN_LEVEL
+from .levels import LEVELS, MIN_LEVEL
 
 __all__ = ["SourceConfig", "DetectorConfig", "PatternConfig", "OutputConfig", "RunConfig", "TrackConfig",
            "LightConfig", "STRATEGIES", "Config", "load_config", "build_section", "parse_param", "parse_size"]
@@ -257,8 +257,8 @@ class LightConfig:
     min_level: float = MIN_LEVEL
 
     def __post_init__(self) -> None:
-        if self.levels not in ("auto", "adaptive", "fixed"):
-            raise ValueError(f"levels: got {self.levels!r}, allowed auto, adaptive, fixed")
+        if self.levels not in ("auto", *LEVELS):
+            raise ValueError(f"levels: got {self.levels!r}, allowed auto, {', '.join(LEVELS)}")
         if self.strategy not in ("auto", *STRATEGIES):
             raise ValueError(f"strategy: got {self.strategy!r}, allowed auto, {', '.join(STRATEGIES)}")
         if self.depth not in ("auto", "fixed", "probe"):

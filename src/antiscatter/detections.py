@@ -6,7 +6,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Detections"]
+__all__ = ["Detections", "rows_in"]
+
+
+def rows_in(ordered: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(at, found): where each of ``ids`` (track ids) is in the ascending ``ordered`` (valid where found)."""
+    if len(ordered) == 0:
+        return np.zeros(len(ids), np.intp), np.zeros(len(ids), bool)
+    at = np.minimum(np.searchsorted(ordered, ids), len(ordered) - 1)
+    return at, ordered[at] == ids
 
 
 @dataclass(frozen=True, eq=False)

@@ -37,9 +37,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .detections import Detections
+from .detections import Detections, rows_in
 
-__all__ = ["HoleLevels", "MIN_LEVEL", "TARGET_FLUX"]
+__all__ = ["HoleLevels", "LEVELS", "MIN_LEVEL", "TARGET_FLUX"]
+
+#: the light in dim and pulsed holes: each particle's own (:class:`HoleLevels`) or ``dim_level`` for all
+LEVELS = ("adaptive", "fixed")
 
 #: the least light a hole leaves its particle (a fraction of the lamp's): below it a particle's
 #: image is lost in the noise the detector divides up where the lamp gave little
@@ -82,8 +85,7 @@ class HoleLevels:
         """(level, least) of each of ``ids``; ``ceiling`` and 0 for ids not known."""
         if len(self.ids) == 0:
             return np.full(len(ids), self.ceiling), np.zeros(len(ids))
-        pos = np.minimum(np.searchsorted(self.ids, ids), len(self.ids) - 1)
-        known = self.ids[pos] == ids
+        pos, known = rows_in(self.ids, ids)
         return np.where(known, self.level[pos], self.ceiling), np.where(known, self.least[pos], 0.0)
 
     def update(self, found: Detections, detection_ids: np.ndarray, dimmed: np.ndarray | None,
@@ -134,9 +136,8 @@ class HoleLevels:
         return np.rint(self.of(track_ids, count) * 255.0).astype(np.uint8)
 
 
+
 def _rows(ordered: np.ndarray, ids: np.ndarray) -> np.ndarray:
     """The row of each of ``ids`` in the ascending ``ordered`` (-1 where it is not there)."""
-    if len(ordered) == 0 or len(ids) == 0:
-        return np.full(len(ids), -1, np.intp)
-    at = np.minimum(np.searchsorted(ordered, ids), len(ordered) - 1)
-    return np.where(ordered[at] == ids, at, -1)
+    at, found = rows_in(ordered, ids)
+    return np.where(found, at, -1)

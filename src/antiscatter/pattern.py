@@ -86,18 +86,16 @@ def render_pattern(detections: Detections, *, size: tuple[int, int] = (1280, 800
     # keep coordinates inside int32 for OpenCV even for wild mappings
     limit = float(1 << 27)
     ok = (np.abs(cx) < limit) & (np.abs(cy) < limit) & (cr < limit)
-    circle, line = cv2.circle, cv2.LINE_8
-    if np.ndim(hole) == 0:
-        for x, y, r in zip(cx[ok].astype(np.int64).tolist(), cy[ok].astype(np.int64).tolist(),
-                           cr[ok].astype(np.int64).tolist()):
-            circle(out, (x, y), r, int(hole), -1, line, _SHIFT)
-        return out
-    levels = np.asarray(hole).reshape(-1)
-    if len(levels) != len(detections):
-        raise ValueError(f"hole: got {len(levels)} levels for {len(detections)} detections")
     order = np.flatnonzero(ok)
-    order = order[np.argsort(levels[order], kind="stable")]  # the brightest drawn last
+    if np.ndim(hole) == 0:
+        grey = np.full(len(detections), int(hole), np.int64)
+    else:
+        grey = np.asarray(hole, np.int64).reshape(-1)
+        if len(grey) != len(detections):
+            raise ValueError(f"hole: got {len(grey)} levels for {len(detections)} detections")
+        order = order[np.argsort(grey[order], kind="stable")]  # the brightest drawn last
+    circle, line = cv2.circle, cv2.LINE_8
     for x, y, r, g in zip(cx[order].astype(np.int64).tolist(), cy[order].astype(np.int64).tolist(),
-                          cr[order].astype(np.int64).tolist(), levels[order].astype(np.int64).tolist()):
+                          cr[order].astype(np.int64).tolist(), grey[order].tolist()):
         circle(out, (x, y), r, g, -1, line, _SHIFT)
     return out

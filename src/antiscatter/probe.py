@@ -37,7 +37,7 @@ from typing import Callable
 import cv2
 import numpy as np
 
-from .detections import Detections
+from .detections import Detections, rows_in as _rows_in
 from .pattern import blank_pattern, map_to_projector
 
 __all__ = ["DepthProbe", "Intervals"]
@@ -496,14 +496,6 @@ class DepthProbe:
                                             thickness[order].tolist(), grey[order].tolist()):
             cv2.line(out, (ax, ay), (bx, by), g, t, cv2.LINE_8, 4)
         return out
-
-
-def _rows_in(ordered: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(at, found): where each of ``ids`` is in the ascending ``ordered`` (valid where found)."""
-    if len(ordered) == 0:
-        return np.zeros(len(ids), np.intp), np.zeros(len(ids), bool)
-    at = np.minimum(np.searchsorted(ordered, ids), len(ordered) - 1)
-    return at, ordered[at] == ids
 
 
 def _median(values: np.ndarray) -> float:

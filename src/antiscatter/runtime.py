@@ -407,9 +407,6 @@ class _Pipeline:
                         else frame.index * self.frame_interval)
             tracks = self.tracker.update(detections, captured, unlit=self.unlit_ids)
             track_ids = tracks.detection_ids
-            if self.levels is not None and self.probe is None:  # how bright each came back under its hole
-                self.levels.update(detections, track_ids, self.unlit_ids, tracks.ids,
-                                   tracks.ids[tracks.confirmed])
             prediction = self.tracker.snapshot()
             if tc.predict:
                 latency = tc.latency_ms / 1e3 if tc.latency_ms >= 0 else self.latency_estimate
@@ -431,12 +428,12 @@ class _Pipeline:
                 self.probe.observe(seen, self.shown_probes, tracks.ids[coasting], exposure=self.shown_exposure,
                                    coasting_centres=tracks.centres[coasting])
                 self.probe.forget(tracks.ids)
-                if self.levels is not None:  # under its own hole or probe: what its verdict found it dimmed by
-                    self.levels.update(detections, track_ids, self.probe.dimmed, tracks.ids,
-                                       tracks.ids[tracks.confirmed])
                 probes = self.probe.probes(holes)
                 if self.pulse_level is not None:
                     intervals = self.probe.intervals()
+            if self.levels is not None:  # how bright each came back under its own hole (or probe: its verdict)
+                self.levels.update(detections, track_ids, self.unlit_ids if self.probe is None else self.probe.dimmed,
+                                   tracks.ids, tracks.ids[tracks.confirmed])
             track_ns = clock() - t_track
             t_processed = clock()
         return _Record(frame, t0, t1, detections, stage_ns, track_ns, track_ids, holes, t_processed, 0, probes,
@@ -471,23 +468,19 @@ class _Pipeline:
                 rec.exposure = self.probe.render(holes, rec.probes, size=self.projector_size, margin=margin,
                                                  out=self.exposure_buffer,
                                                  hole=self.pulse_level if grey is None else grey)
-        elif self.levels is not None:
-            holes, margin = rec.pattern, self.config.pattern.margin
-            grey = self.levels.grey(holes.track_ids, len(holes))
-            if self.pulse_level is None:  # dim: each hole at its own level
-                rec.pattern = render_pattern(holes, size=self.projector_size, mapping=self.mapping, margin=margin,
-                                             out=buffer, hole=grey)
-            else:  # pulse: each at its own level while the camera looks, dark between exposures
-                rec.exposure = render_pattern(holes, size=self.projector_size, mapping=self.mapping,
-                                              margin=margin, out=self.exposure_buffer, hole=grey)
-                if self.pulse_level < 255:  # the same holes, dark: wherever the lifted pattern is not full
-                    rec.pattern = cv2.compare(rec.exposure, 255, cv2.CMP_EQ, dst=buffer)  # 40 us, not a 2nd 460
-                else:
-                    rec.pattern = render_pattern(holes, size=self.projector_size, mapping=self.mapping,
-                                                 margin=margin, out=buffer)
         else:
-            rec.pattern = render_pattern(rec.pattern, size=self.projector_size, mapping=self.mapping,
-                                         margin=self.config.pattern.margin, out=buffer, hole=self.hole_level)
+            holes = rec.pattern
+            draw = {"size": self.projector_size, "mapping": self.mapping, "margin": self.config.pattern.margin}
+            grey = self.levels.grey(holes.track_ids, len(holes)) if self.levels is not None else None
+            if grey is not None and self.pulse_level is not None:
+                # pulse: each hole at its own level while the camera looks; between exposures the same
+                # holes dark, wherever the lifted pattern is not full (40 us, not a second drawing's 460)
+                rec.exposure = render_pattern(holes, out=self.exposure_buffer, hole=grey, **draw)
+                rec.pattern = (cv2.compare(rec.exposure, 255, cv2.CMP_EQ, dst=buffer) if self.pulse_level < 255
+                               else render_pattern(holes, out=buffer, **draw))
+            else:  # dim holes at their own levels, or every hole at one
+                rec.pattern = render_pattern(holes, out=buffer, hole=self.hole_level if grey is None else grey,
+                                             **draw)
         rec.t_pattern = self.clock()
         rec.t_processed = t_start
         return rec

@@ -53,7 +53,7 @@ import numpy as np
 from .detection import make_detector
 from .detections import Detections
 from .errors import UsageError
-from .levels import HoleLevels
+from .levels import LEVELS, HoleLevels
 from .pattern import render_pattern, scale_mapping
 from .simulate import make_scene
 from .probe import DepthProbe
@@ -87,8 +87,6 @@ SETTLE_FRAMES = 20
 #: camera frame gathers by exposure / this
 REFERENCE_EXPOSURE_S = 0.004
 MAPPINGS = ("identity", "calibrated", "range", "probe")
-#: the light in dim and pulsed holes: each particle's own (HoleLevels) or ``dim_level`` for all
-LEVELS = ("adaptive", "fixed")
 
 
 def steady_from(frames: int) -> int:
@@ -314,17 +312,16 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
         on_at = math.ceil(ready / sub_s - 1e-9) * sub_s
         if tracker is not None:
             tracks = tracker.update(found, t0 + geometry.exposure_s / 2, unlit=shown_ids)
-            if levels is not None and probe is None:
-                levels.update(found, tracks.detection_ids, shown_ids, tracks.ids, tracks.ids[tracks.confirmed])
             if probe is not None:
                 seen = Detections(found.centres, found.radii, found.scores, tracks.detection_ids)
                 coasting = tracks.confirmed & (tracks.misses > 0)
                 probe.observe(seen, shown_probes, tracks.ids[coasting],
                               exposure=exposure_pattern, coasting_centres=tracks.centres[coasting])
                 probe.forget(tracks.ids)
-                if levels is not None:  # under its own hole or probe: what its verdict found it dimmed by
-                    levels.update(found, tracks.detection_ids, probe.dimmed, tracks.ids,
-                                  tracks.ids[tracks.confirmed])
+            if levels is not None:  # how bright each came back under its own hole (or probe: its verdict)
+                levels.update(found, tracks.detection_ids, shown_ids if probe is None else probe.dimmed,
+                              tracks.ids, tracks.ids[tracks.confirmed])
+            if probe is not None:
                 snapshot = tracker.snapshot()
                 probes = probe.probes(snapshot.holes(t0))
                 return on_at, _Probing(snapshot, probes, probe.intervals() if run.strategy == "pulse" else probes)
