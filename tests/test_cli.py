@@ -515,6 +515,39 @@ def test_depth_probe_draws_each_unknown_particle_over_its_epipolar_segment(tmp_p
     assert bad.code == 2 and "probe needs light.strategy dim" in bad.err
 
 
+def test_depth_probe_leaves_out_the_holes_not_worth_their_light(tmp_path, cli):
+    # three bright bubbles and a faint grain, all of unknown depth: the grain's segment would take
+    # more of the scene's light than its share of the backscatter is worth (--min-worth 0.2, the
+    # default), so it stays lit; with 0 every hole is drawn
+    from antiscatter.calibration import load_calibration
+
+    calibration = tmp_path / "cal.json"
+    assert cli("calibrate", str(calibration), "--twin", "--size", "160x120").code == 0
+    cal = load_calibration(calibration)
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    image = np.maximum(draw_discs((160, 120), [(30.0, 40.0, 6.0), (70.0, 40.0, 6.0), (110.0, 40.0, 6.0)]),
+                       draw_discs((160, 120), [(100.0, 75.0, 1.5)], value=40))
+    for i in range(2):
+        cv2.imwrite(str(frames / f"{i}.png"), image)
+
+    def at(pattern, x, y, depth):
+        u, v, w = cal.mapping_at(depth) @ [x, y, 1.0]
+        return pattern[int(round(v / w)), int(round(u / w))]
+
+    for worth, grain in (((), 255), (("--min-worth", "0"), 51)):
+        out = tmp_path / f"pat{len(worth)}"
+        result = cli("run", str(frames), "--strategy", "dim", "--dim-level", "0.2", "--depth", "probe",
+                     "--calibration", str(calibration), "--output", f"files:{out}", *worth)
+        assert result.code == 0, result.err
+        pattern = cv2.imread(str(out / "0.png"), cv2.IMREAD_UNCHANGED)
+        # each one's first probe: the far half of its segment (3 m .. 0.55 m)
+        assert [at(pattern, 100.0, 75.0, d) for d in (3.0, 1.0, 0.6)] == [grain] * 3, worth
+        assert [at(pattern, 70.0, 40.0, d) for d in (3.0, 1.0, 0.6)] == [51] * 3, worth
+    bad = cli("run", str(frames), "--min-worth", "-1", "--output", "none")
+    assert bad.code == 2 and "light.min_worth: got -1.0, allowed a number >= 0" in bad.err
+
+
 @pytest.mark.parametrize("strategy, exposed", [("dim", "{}.png"), ("pulse", "flash-{}.png")])
 def test_depth_probe_judges_each_verdict_by_the_pattern_the_exposure_was_taken_under(tmp_path, cli, monkeypatch,
                                                                                    strategy, exposed):

@@ -173,6 +173,42 @@ def test_a_probed_hole_withholds_light_over_its_interval_and_no_further():
         assert ((np.column_stack([xs, ys]) - far[:2] / far[2]) @ direction).min() < -3
 
 
+def test_a_hole_is_drawn_only_where_its_backscatter_is_worth_the_scene_light_it_takes():
+    # a bright bubble and a faint grain, both of unknown depth: each one's hole is a segment some
+    # 550 projector px long.  The grain sends back 1/20000 of the frame's backscatter and its line
+    # would darken about 0.1 % of the field: not worth it at min_worth 0.2 (it would need 0.02 %)
+    size = GEOMETRY.projector_size
+    centres = np.array([[300.0, 300.0], [500.0, 200.0]])
+    lit = [20000.0, 1.0]
+
+    def searching(**kw):
+        p = DepthProbe(GEOMETRY.plane_mapping, near_m=0.3, far_m=3.0, dim_level=0.2, **{"projector_size": size, **kw})
+        p.observe(Detections(centres, [4.0, 1.0], scores=lit, track_ids=[1, 2]), {}, np.empty(0))
+        return p, Detections(centres, [4.0, 1.0], track_ids=[1, 2])
+
+    p, holes = searching()
+    share = p.span_px(centres[1:], np.array([p.w_far]), np.array([p.w_near]))[0] * 2 / (size[0] * size[1])
+    assert 0.2 * share > 3 / 20001  # the grain fails by a factor of several
+    assert set(p.probes(holes)) == {1} and set(p.covers(holes)) == {1}
+    assert p.covers(holes)[1] == (p.w_far, p.w_near)
+    light = p.render(holes, p.covers(holes), size=size, given_only=True)
+    mid = [p.project(centres, np.full(2, (p.w_far + p.w_near) / 2))[i] for i in range(2)]
+    assert light[int(mid[0][1]), int(mid[0][0])] == 0 and light[int(mid[1][1]), int(mid[1][0])] == 255
+    # not drawn: no verdict -- the grain comes back as bright and keeps its whole interval
+    p.observe(Detections(centres, [4.0, 1.0], scores=[20000.0 * 0.2, 1.0], track_ids=[1, 2]), p.probes(holes),
+              np.empty(0))
+    assert p.intervals()[2] == (p.w_far, p.w_near) and p.intervals()[1] != (p.w_far, p.w_near)
+    # without the rule (0), or without the projector's size, every hole is drawn; a brighter grain passes
+    for kw in ({"min_worth": 0.0}, {"projector_size": None}):
+        p, holes = searching(**kw)
+        assert set(p.probes(holes)) == {1, 2} and set(p.covers(holes)) == {1, 2}
+    lit[1] = 200.0  # 1/100 of the backscatter
+    p, holes = searching()
+    assert set(p.probes(holes)) == {1, 2}
+    with pytest.raises(ValueError, match="min_worth: got -1"):
+        DepthProbe(GEOMETRY.plane_mapping, min_worth=-1.0)
+
+
 def test_probe_runs_need_dim_holes():
     with pytest.raises(ValueError, match="probe needs strategy dim or pulse"):
         TwinRun("contrast", "probe", "flash", predict=True)

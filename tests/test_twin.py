@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
+from antiscatter.probe import MIN_WORTH
 from antiscatter.simulate.scene import KindConfig, RealisticScene, SceneConfig
 from antiscatter.twin import TwinGeometry, TwinRun, _mean_over_discs, simulate_loop
 
@@ -151,6 +152,9 @@ def test_twin_command_json(cli):
     assert {(r["strategy"], r["levels"]) for r in runs if r["predict"] and r["strategy"] in ("dim", "pulse")} == {
         (s, lv) for s in ("dim", "pulse") for lv in ("adaptive", "fixed")}
     assert all(r["levels"] is None for r in runs if r["strategy"] not in ("dim", "pulse"))
+    # depth probing draws only the holes worth their light, and every hole beside it for comparison
+    assert sorted(r["min_worth"] for r in runs if r["mapping"] == "probe") == [0.0] + [MIN_WORTH] * 4
+    assert all(r["min_worth"] is None for r in runs if r["mapping"] != "probe")
     assert all(r["latency_ms"] == 7 and 0 <= r["backscatter_removed"] <= 1 and 0 <= r["scene_light_kept"] <= 1
                for r in runs)
     bad = cli("twin", "--preset", "seed")
@@ -158,6 +162,8 @@ def test_twin_command_json(cli):
     bad = cli("twin", "--dim-level", "1.5")
     assert bad.code == 2 and "--dim-level 1.5: allowed 0..1" in bad.err and "Traceback" not in bad.err
     # the views do not overlap: every figure would be 0 / 0 (it printed 0.000 for all, full light included)
+    bad = cli("twin", "--min-worth", "-1")
+    assert bad.code == 2 and "--min-worth -1.0: allowed a number >= 0" in bad.err
     bad = cli("twin", "--latency-ms", "nan")  # a traceback before
     assert bad.code == 2 and "--latency-ms nan: allowed a number >= 0" in bad.err
     bad = cli("twin", "--baseline-m", "inf")

@@ -33,6 +33,7 @@ def _detector_help() -> str:
 
 def build_parser() -> argparse.ArgumentParser:
     from .levels import LEVELS
+    from .probe import MIN_WORTH
 
     parser = _Parser(
         prog="antiscatter",
@@ -99,6 +100,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "the light the detector needs to see it, between --min-level and --dim-level; fixed: "
                         "--dim-level for every hole")
     g.add_argument("--min-level", type=float, help="the least light an adaptive hole leaves, 0..1 (default 0.02)")
+    g.add_argument("--min-worth", type=float, help="depth probing: draw a hole only where the share of the "
+                   "backscatter it withholds is at least this many times the share of the scene light it takes "
+                   f"(default {MIN_WORTH:g}; 0 = every hole)")
     g.add_argument("--depth", choices=("auto", "fixed", "probe"), help="auto (default): probe where it can "
                    "run, else fixed; fixed: holes at the calibration's working distance; probe: each particle's depth found by bisection along its epipolar "
                    "line under dim holes (needs --strategy dim or pulse and --calibration from two distances)")
@@ -274,6 +278,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "flash runs, 0..1 (default 0.25; with a fast projector a full 1.0 flash is short)")
     tw.add_argument("--dim-level", type=float, default=0.1, help="light left in dim and pulsed holes, 0..1 "
                     "(default 0.1, as run)")
+    tw.add_argument("--min-worth", type=float, default=MIN_WORTH, help="depth probing: a hole is drawn only where "
+                    "the share of the backscatter it withholds is at least this many times the share of the scene "
+                    f"light it takes (default {MIN_WORTH:g}, as run; one probing run always draws every hole)")
     tw.add_argument("--projector-size", default="1280x800", metavar="WxH", help="projector size (default 1280x800)")
     tw.add_argument("--plot", metavar="FILE.png", help="also draw backscatter removed and scene light kept "
                     "against latency, against baseline and against particle speed (a current across the view)")
@@ -668,6 +675,8 @@ def _twin(args: argparse.Namespace) -> int:
     for key in ("flash_level", "dim_level"):
         if not 0 <= getattr(args, key) <= 1:
             raise UsageError(f"--{key.replace('_', '-')} {getattr(args, key)}: allowed 0..1")
+    if not (math.isfinite(args.min_worth) and args.min_worth >= 0):
+        raise UsageError(f"--min-worth {args.min_worth}: allowed a number >= 0 (0 = every hole drawn)")
     try:
         size = parse_size(args.size, key="--size")
         check_frame_size(*size, what="--size: camera frames")
@@ -694,15 +703,18 @@ def _twin(args: argparse.Namespace) -> int:
                   "projector px")
     runs = []
     for run in default_runs(args.baseline_m):
-        run = dataclasses.replace(run, flash_level=args.flash_level, dim_level=args.dim_level)
+        run = dataclasses.replace(run, flash_level=args.flash_level, dim_level=args.dim_level,
+                                  min_worth=args.min_worth if run.min_worth else 0.0)
         result = simulate_loop(run, geometry=geometry, preset=args.preset, frames=args.frames, seed=args.seed,
                                latency_ms=args.latency_ms, calibration=calibration)
         result.pop("series")
         runs.append(result)
         if not args.json:
             levels = f"{result['levels']} levels" if result["levels"] else ""  # dim and pulse only
+            if result["min_worth"] == 0:
+                levels += ", every hole"  # probing without the holes' worth rule
             print(f"{result['detector'] or 'full light':<10} {result['mapping']:<11} {result['strategy']:<6} "
-                  f"predict {str(result['predict']).lower():<5} {levels:<15} "
+                  f"predict {str(result['predict']).lower():<5} {levels:<27} "
                   f"removed {result['backscatter_removed']:.3f}  "
                   f"kept {result['scene_light_kept']:.3f}  (from frame {result['steady_from_frame']}: "
                   f"{result['backscatter_removed_steady']:.3f} / {result['scene_light_kept_steady']:.3f})")
@@ -800,7 +812,8 @@ def _run_config(args: argparse.Namespace):
         "pattern": {"margin": args.margin},
         "track": {"enabled": args.track, "predict": args.predict, "latency_ms": args.latency_ms},
         "light": {"strategy": args.strategy, "dim_level": args.dim_level, "flash_level": args.flash_level,
-                  "depth": args.depth, "levels": args.levels, "min_level": args.min_level},
+                  "depth": args.depth, "levels": args.levels, "min_level": args.min_level,
+                  "min_worth": args.min_worth},
         "output": {"outputs": tuple(args.output) if args.output else None},
         "run": {"frames": args.frames, "fps": args.fps, "nice": args.nice,
                 "metrics": args.metrics, "detections": args.detections, "mode": args.mode,

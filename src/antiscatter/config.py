@@ -22,6 +22,7 @@ import numpy as np
 
 from .errors import UsageError
 from .levels import LEVELS, MIN_LEVEL
+from .probe import MIN_WORTH
 
 __all__ = ["SourceConfig", "DetectorConfig", "PatternConfig", "OutputConfig", "RunConfig", "TrackConfig",
            "LightConfig", "STRATEGIES", "Config", "load_config", "build_section", "parse_param", "parse_size"]
@@ -244,6 +245,9 @@ class LightConfig:
         faintest need -- or ``fixed``: ``dim_level`` for every hole.  Detectors whose scores are
         not a flux (``seed``) keep ``dim_level``.
     min_level: the least light an adaptive hole leaves its particle, 0..1 (capped at ``dim_level``).
+    min_worth: probe: draw a hole only where the share of the frame's backscatter it withholds is
+        at least this many times the share of the projector's field it darkens (0 = every hole;
+        see :attr:`antiscatter.probe.DepthProbe.min_worth`).
     """
 
     strategy: str = "auto"
@@ -255,6 +259,7 @@ class LightConfig:
     far_m: float = 3.0
     levels: str = "auto"
     min_level: float = MIN_LEVEL
+    min_worth: float = MIN_WORTH
 
     def __post_init__(self) -> None:
         if self.levels not in ("auto", *LEVELS):
@@ -269,6 +274,8 @@ class LightConfig:
             value = getattr(self, key)
             if not (math.isfinite(value) and 0 <= value <= 1):
                 raise ValueError(f"{key}: got {value}, allowed a number 0..1")
+        if not (math.isfinite(self.min_worth) and self.min_worth >= 0):
+            raise ValueError(f"min_worth: got {self.min_worth}, allowed a number >= 0 (0 = every hole drawn)")
 
 
 @dataclass(frozen=True)

@@ -19,8 +19,11 @@ particles of its brightness settled (the lamp's inverse-square fall-off,
 learnt as the dive goes: :meth:`DepthProbe.prior`).
 With pulsed holes (the ``pulse`` strategy) the camera only looks during one
 refresh: the probe's half is shown, lifted to the dim level, then, and the
-whole remaining interval (:meth:`DepthProbe.intervals`) is dark the rest of the
-time, so a particle in the half not probed is not fully lit meanwhile.
+whole remaining interval (:meth:`DepthProbe.covers`) is dark the rest of the
+time, so a particle in the half not probed is not fully lit meanwhile.  A hole
+is drawn only where the backscatter it withholds is worth the scene light it
+takes (:attr:`DepthProbe.min_worth`): a faint particle whose depth is still
+unknown would darken hundreds of pixels of line for little.
 
 Depth is kept as inverse depth w = 1/Z in [1/far, 1/near]: for a
 camera-projector pair the mapping of a plane at depth Z is linear in 1/Z, so
@@ -43,6 +46,8 @@ from .pattern import blank_pattern, map_to_projector
 __all__ = ["DepthProbe", "Intervals"]
 
 _LO, _HI, _LIT, _HELD, _MISSED, _RESTARTED = range(6)  # columns of DepthProbe's track state
+#: the least worth of a drawn hole (:attr:`DepthProbe.min_worth`)
+MIN_WORTH = 0.2
 
 
 class Intervals(Mapping):
@@ -131,6 +136,17 @@ class DepthProbe:
         removal within 0.01.  Off sunlit or very clear water, where brightness says little
         about the distance to the lamp, the residuals are wide and so is the prior.
     prior_coverage: share of the residuals the prior's interval covers (default 0.8).
+    projector_size: (width, height) of the projector, for ``min_worth``; None: every hole drawn.
+    min_worth: a hole is drawn only where it is worth its light: the share of the frame's
+        backscatter it withholds (its particle's brightness when lit over that of all the holes'
+        particles) at least ``min_worth`` times the share of the projector's field it darkens
+        (its segment's area).  The two headline figures -- backscatter removed, scene light kept
+        -- are such shares, so at 1 a hole stays when it removes at least as much of the one as
+        it costs of the other.  Only segments long against their particle's worth fail: a faint
+        far particle whose depth is still unknown (hundreds of pixels of line for a grain), or in
+        a dense cloud, where each particle's share is small; a co-located or settled hole is a
+        disc a few pixels across and always stays.  A probe not drawn gets no verdict; its
+        whole interval is dark between pulses only if that is worth it too (:meth:`covers`).
     """
 
     mapping_at: Callable[[float], np.ndarray]
@@ -140,6 +156,8 @@ class DepthProbe:
     settle_px: float = 12.0
     prior_samples: int = 400
     prior_coverage: float = 0.8
+    projector_size: tuple[int, int] | None = None
+    min_worth: float = MIN_WORTH
 
     #: settled tracks needed before brightness narrows a new particle's search.  The searches of
     #: the first second of a dive are the costliest (whole-range segments: at 12 cm the twin's
@@ -196,6 +214,8 @@ class DepthProbe:
             raise ValueError(f"prior_samples: got {self.prior_samples}, allowed >= 0 (0 = no prior)")
         if not 0 < self.prior_coverage <= 1:
             raise ValueError(f"prior_coverage: got {self.prior_coverage}, allowed 0 < coverage <= 1")
+        if not (math.isfinite(self.min_worth) and self.min_worth >= 0):
+            raise ValueError(f"min_worth: got {self.min_worth}, allowed >= 0 (0 = every hole drawn)")
         # the settled tracks' (log brightness, log inverse depth), oldest first, at most prior_samples
         self._x = np.empty(0, np.float64)
         self._y = np.empty(0, np.float64)
@@ -430,14 +450,41 @@ class DepthProbe:
 
     def probes(self, holes: Detections) -> Intervals:
         """The interval each hole covers next: the lower half of its track's interval while it
-        spans more than ``settle_px``, else all of it; new particles get the whole range."""
+        spans more than ``settle_px``, else all of it; new particles get the whole range.  Only
+        the holes worth it (``min_worth``): the others are not drawn and get no verdict."""
+        ids, lo, hi, lit = self._whole(holes)
+        halve = (lit > 0) & (self.span_px(holes.centres, lo, hi) > self.settle_px)
+        hi = np.where(halve, (lo + hi) / 2, hi)
+        keep = self._worth(holes, lo, hi, lit)
+        return Intervals(ids[keep], lo[keep], hi[keep])
+
+    def covers(self, holes: Detections) -> Intervals:
+        """Each hole's whole interval -- where its particle may be: what pulsed holes keep dark
+        between exposures -- for the holes worth it (``min_worth``)."""
+        ids, lo, hi, lit = self._whole(holes)
+        keep = self._worth(holes, lo, hi, lit)
+        return Intervals(ids[keep], lo[keep], hi[keep])
+
+    def _whole(self, holes: Detections) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(ids, lo, hi, lit) of each hole's track: its interval and brightness when lit (the
+        whole range and 0 for a track not known yet)."""
         ids = holes.track_ids
         rows, known = self._find(ids)
         state = self._state[rows] if len(self._ids) else np.zeros((len(ids), 6))
         lo = np.where(known, state[:, _LO], self.w_far)
         hi = np.where(known, state[:, _HI], self.w_near)
-        halve = known & (state[:, _LIT] > 0) & (self.span_px(holes.centres, lo, hi) > self.settle_px)
-        return Intervals(ids, lo, np.where(halve, (lo + hi) / 2, hi))
+        return ids, lo, hi, np.where(known, state[:, _LIT], 0.0)
+
+    def _worth(self, holes: Detections, lo: np.ndarray, hi: np.ndarray, lit: np.ndarray) -> np.ndarray:
+        """Whether each hole drawn over [lo, hi] is worth its light (``min_worth``); holes whose
+        particle's brightness is not known are always drawn."""
+        total = float(lit[lit > 0].sum())
+        if self.projector_size is None or self.min_worth <= 0 or total <= 0:
+            return np.ones(len(lit), bool)
+        thickness = np.maximum(1.0, np.rint(2 * map_to_projector(holes, self._h_far)[1]))
+        area = thickness * (self.span_px(holes.centres, lo, hi) + thickness)  # caps included
+        field = float(self.projector_size[0] * self.projector_size[1])
+        return (lit <= 0) | (lit / total >= self.min_worth * area / field)
 
     def intervals(self) -> Intervals:
         """Each known track's whole remaining interval (inverse depths), where its particle may be."""
@@ -451,11 +498,14 @@ class DepthProbe:
 
     # ---------------------------------------------------------------- rendering
     def render(self, holes: Detections, probes: Mapping[int, tuple[float, float]], *, size: tuple[int, int],
-               margin: float = 0.0, out: np.ndarray | None = None, hole: int | np.ndarray = 0) -> np.ndarray:
+               margin: float = 0.0, out: np.ndarray | None = None, hole: int | np.ndarray = 0,
+               given_only: bool = False) -> np.ndarray:
         """The pattern: each hole drawn as a thick segment over its probe interval (uint8, 255 = light).
 
         hole: the segments' grey level, or one per hole ((N,), :class:`~antiscatter.levels.HoleLevels`;
         where they cross, the brighter wins).
+        given_only: draw only the holes ``probes`` has an interval for (:meth:`probes`,
+        :meth:`covers`: the ones worth it); else the others over the whole near..far range.
 
         A thick line's round caps reach half its thickness past its ends.  A probe -- the part
         of its track's interval that the next exposure judges -- is drawn that much shorter at
@@ -491,6 +541,8 @@ class DepthProbe:
             a, b = a + step, b - step
         grey = np.broadcast_to(np.asarray(hole, np.int64), (len(holes),))
         order = np.argsort(grey, kind="stable")  # the brightest drawn last
+        if given_only:
+            order = order[given[order]]
         for (ax, ay), (bx, by), t, g in zip((a[order] * 16).round().astype(np.int64).tolist(),
                                             (b[order] * 16).round().astype(np.int64).tolist(),
                                             thickness[order].tolist(), grey[order].tolist()):

@@ -29,6 +29,7 @@ from .errors import UsageError, check_output_path
 from .levels import HoleLevels
 from .outputs import LightOutput, open_output
 from .pattern import render_pattern, scale_mapping
+from .probe import Intervals
 from .sources import FrameSource, open_source, parse_crop
 from .stats import RunningStats
 
@@ -335,7 +336,8 @@ class _Pipeline:
                 raise UsageError(f"{config.pattern.calibration}: light.depth probe needs a calibration with a "
                                  "baseline (measured at two or more distances)")
             self.probe = DepthProbe(calibration.mapping_at, near_m=config.light.near_m, far_m=config.light.far_m,
-                                    dim_level=config.light.dim_level)
+                                    dim_level=config.light.dim_level, projector_size=self.projector_size,
+                                    min_worth=config.light.min_worth)
         width, height = self.projector_size
         self.buffers = [np.empty((height, width), np.uint8) for _ in range(buffers)]
         self.next_buffer = 0
@@ -430,7 +432,7 @@ class _Pipeline:
                 self.probe.forget(tracks.ids)
                 probes = self.probe.probes(holes)
                 if self.pulse_level is not None:
-                    intervals = self.probe.intervals()
+                    intervals = self.probe.covers(holes)
             if self.levels is not None:  # how bright each came back under its own hole (or probe: its verdict)
                 self.levels.update(detections, track_ids, self.unlit_ids if self.probe is None else self.probe.dimmed,
                                    tracks.ids, tracks.ids[tracks.confirmed])
@@ -457,17 +459,18 @@ class _Pipeline:
         rec.hole_ids = rec.pattern.track_ids
         if self.probe is not None:
             holes, margin = rec.pattern, self.config.pattern.margin
+            rec.hole_ids = Intervals.of(rec.probes).ids  # the holes worth drawing (DepthProbe.min_worth)
             grey = self.levels.grey(holes.track_ids, len(holes)) if self.levels is not None else None
             # pulse: between exposures each track's whole interval is dark; the probe's half is
             # only needed while the camera looks, lifted to the dim level (or each track's own)
             rec.pattern = self.probe.render(holes, rec.probes if rec.intervals is None else rec.intervals,
                                             size=self.projector_size, margin=margin, out=buffer,
                                             hole=grey if grey is not None and rec.intervals is None
-                                            else self.hole_level)
+                                            else self.hole_level, given_only=True)
             if rec.intervals is not None:
                 rec.exposure = self.probe.render(holes, rec.probes, size=self.projector_size, margin=margin,
                                                  out=self.exposure_buffer,
-                                                 hole=self.pulse_level if grey is None else grey)
+                                                 hole=self.pulse_level if grey is None else grey, given_only=True)
         else:
             holes = rec.pattern
             draw = {"size": self.projector_size, "mapping": self.mapping, "margin": self.config.pattern.margin}

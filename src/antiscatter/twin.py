@@ -56,7 +56,7 @@ from .errors import UsageError
 from .levels import LEVELS, HoleLevels
 from .pattern import render_pattern, scale_mapping
 from .simulate import make_scene
-from .probe import DepthProbe
+from .probe import MIN_WORTH, DepthProbe, Intervals
 from .tracking import Prediction
 
 
@@ -182,6 +182,7 @@ class TwinRun:
     flash_level: float = 0.25
     margin_px: float = 0.0
     levels: str = "adaptive"
+    min_worth: float = MIN_WORTH
 
     def __post_init__(self) -> None:
         if self.levels not in LEVELS:
@@ -232,7 +233,9 @@ def _holes_pattern(holes: Detections, run: TwinRun, *, size: tuple[int, int], ma
     dim = run.strategy == "dim" or lifted
     own = levels.grey(holes.track_ids, len(holes)) if dim and levels is not None else 0
     if segments is not None:
-        pattern = segments.render(holes, probes or {}, size=size, margin=run.margin_px, out=buffer, hole=own)
+        # probing: only the holes the probe found worth drawing (its intervals); else the whole range
+        pattern = segments.render(holes, probes or {}, size=size, margin=run.margin_px, out=buffer, hole=own,
+                                  given_only=probes is not None)
     else:
         pattern = render_pattern(holes, size=size, mapping=mapping, margin=run.margin_px, out=buffer, hole=own)
     light = pattern.astype(np.float32) / 255.0
@@ -262,7 +265,8 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
     segments = None
     if run.mapping == "probe" or (run.mapping == "range" and geometry.baseline_m > 0):
         segments = DepthProbe(calibration.mapping_at if calibration is not None else geometry.plane_mapping,
-                              near_m=geometry.near_m, far_m=geometry.far_m, dim_level=run.dim_level)
+                              near_m=geometry.near_m, far_m=geometry.far_m, dim_level=run.dim_level,
+                              projector_size=geometry.projector_size, min_worth=run.min_worth)
     probe = segments if run.mapping == "probe" else None
     levels = (HoleLevels(run.dim_level) if run.levels == "adaptive" and run.strategy in ("dim", "pulse")
               and tracker is not None else None)
@@ -323,8 +327,9 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                               tracks.ids, tracks.ids[tracks.confirmed])
             if probe is not None:
                 snapshot = tracker.snapshot()
-                probes = probe.probes(snapshot.holes(t0))
-                return on_at, _Probing(snapshot, probes, probe.intervals() if run.strategy == "pulse" else probes)
+                holes = snapshot.holes(t0)
+                probes = probe.probes(holes)
+                return on_at, _Probing(snapshot, probes, probe.covers(holes) if run.strategy == "pulse" else probes)
             if run.predict and run.per_refresh:
                 return on_at, tracker.snapshot()
             holes = tracker.holes(on_at + sub_s / 2 if run.predict else t0 + geometry.exposure_s / 2)
@@ -354,7 +359,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                 shown_probes = displayed.probes if isinstance(displayed, _Probing) else {}
                 # the tracks whose holes this exposure is taken under (none under a flash)
                 shown_ids = (None if run.strategy == "flash" else
-                             displayed.prediction.ids if isinstance(displayed, _Probing) else
+                             Intervals.of(displayed.probes).ids if isinstance(displayed, _Probing) else
                              displayed.ids if isinstance(displayed, (Prediction, _Fixed)) else None)
             pulsed = run.strategy == "pulse" and j == 0 and detector is not None  # the exposure's refresh
             if detector is None:
@@ -426,6 +431,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
             "mapping": run.mapping if run.detector else "none", "predict": run.predict,
             "strategy": run.strategy if run.detector else "none", "dim_level": run.dim_level,
             "levels": ("adaptive" if levels is not None else "fixed") if run.strategy in ("dim", "pulse") else None,
+            "min_worth": run.min_worth if probe is not None else None,
             "latency_ms": latency_ms,
             "baseline_m": geometry.baseline_m, "backscatter_removed": removed,
             "scene_light_kept": on_scene / scene_samples if scene_samples else 1.0, "frames": frames,
@@ -450,6 +456,7 @@ def default_runs(baseline_m: float) -> list[TwinRun]:
         runs.append(TwinRun("contrast", "range", "flash", predict=True))
         runs += [TwinRun("contrast", "probe", strategy, predict=predict)
                  for strategy in ("dim", "pulse") for predict in (False, True)]
+        runs.append(TwinRun("contrast", "probe", "pulse", predict=True, min_worth=0.0))
     return runs
 
 

@@ -246,7 +246,8 @@ def _twin_rows(frames: int, log: Callable[[str], None], *, seeds: int = 3) -> li
                 name = ("full light" if run.detector is None else
                         f"{out['detector']}, {out['mapping']}, {out['strategy']}"
                         + (", predict" if out["predict"] else "")
-                        + (", fixed levels" if run.levels == "fixed" else ""))
+                        + (", fixed levels" if run.levels == "fixed" else "")
+                        + (", every hole" if out.get("min_worth") == 0 else ""))
                 removed = [o["backscatter_removed"] for o in outs]
                 rows.append({"baseline_m": baseline, "latency_ms": latency, "run": name,
                              **{key: float(np.mean([o[key] for o in outs])) for key in keys},
