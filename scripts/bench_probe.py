@@ -5,7 +5,7 @@ Particles at random depths over 0.3-3 m in front of the twin's default camera an
 projector (12 cm apart) drift at up to 200 px/s at 60 fps; each frame the probe judges
 the last exposure (a particle under its probe, or another's, comes back at the dim level,
 else lit; the verdicts read that exposure's pattern along each particle's line),
-picks the next intervals, and draws both patterns the pulse strategy shows (the whole
+picks the next intervals (for the holes worth their light), and draws both patterns the pulse strategy shows (the whole
 intervals dark between exposures, the probes lifted during the exposure), as
 ``antiscatter run`` does.  Median and p99 of each call are reported.
 """
@@ -33,10 +33,11 @@ def main() -> None:
     depth = 1.0 / rng.uniform(1 / 3.0, 1 / 0.3, n)  # uniform in inverse depth, as the probe searches
     lit = 400.0 * depth ** -0.5  # brighter nearer (the prior learns the relation)
     ids = np.arange(n)
-    probe = DepthProbe(geometry.plane_mapping, near_m=0.3, far_m=3.0, dim_level=0.1)
+    probe = DepthProbe(geometry.plane_mapping, near_m=0.3, far_m=3.0, dim_level=0.1,
+                       projector_size=geometry.projector_size)
     pattern = np.empty(geometry.projector_size[::-1], np.uint8)
     exposure = np.empty_like(pattern)
-    times: dict[str, list[int]] = {"observe": [], "probes": [], "render": [], "frame": []}
+    times: dict[str, list[int]] = {"observe": [], "plan": [], "render": [], "frame": []}
     shown = probe.probes(Detections(start, np.full(n, 3.0), track_ids=ids))
     for f in range(args.frames):
         centres = (start + velocity * f / 60) % (w, h)
@@ -50,12 +51,12 @@ def main() -> None:
         # judged against the light of the last exposure (its pattern, drawn at the end of the last frame)
         probe.observe(found, shown, np.empty(0, np.int64), exposure=exposure if f else None)
         t1 = time.perf_counter_ns()
-        shown = probe.probes(holes)
+        shown, between = probe.plan(holes)  # the holes worth their light
         t2 = time.perf_counter_ns()
-        probe.render(holes, probe.intervals(), size=geometry.projector_size, out=pattern)
-        probe.render(holes, shown, size=geometry.projector_size, out=exposure, hole=26)
+        probe.render(holes, between, size=geometry.projector_size, out=pattern, given_only=True)
+        probe.render(holes, shown, size=geometry.projector_size, out=exposure, hole=26, given_only=True)
         t3 = time.perf_counter_ns()
-        for key, ns in (("observe", t1 - t0), ("probes", t2 - t1), ("render", (t3 - t2) // 2), ("frame", t3 - t0)):
+        for key, ns in (("observe", t1 - t0), ("plan", t2 - t1), ("render", (t3 - t2) // 2), ("frame", t3 - t0)):
             times[key].append(ns)
     print(f"machine: {machine_description()}")
     print(f"{n} particles, {args.frames} frames, projector {geometry.projector_size[0]}x{geometry.projector_size[1]}")

@@ -434,6 +434,6 @@ def test_the_probe_benchmark_script_runs_and_reports_every_call():
     out = subprocess.run([sys.executable, str(script), "--particles", "20", "--frames", "15"], capture_output=True,
                          text=True, timeout=120)
     assert out.returncode == 0, out.stderr
-    for call in ("observe", "probes", "render (each of 2)", "frame"):
+    for call in ("observe", "plan", "render (each of 2)", "frame"):
         assert f"{call}: median" in out.stdout
     assert "settled depths learnt for the prior: " in out.stdout

@@ -448,43 +448,50 @@ class DepthProbe:
         self._ids = merged[order]
         self._state = np.concatenate([self._state, fresh])[order]
 
-    def probes(self, holes: Detections) -> Intervals:
-        """The interval each hole covers next: the lower half of its track's interval while it
-        spans more than ``settle_px``, else all of it; new particles get the whole range.  Only
-        the holes worth it (``min_worth``): the others are not drawn and get no verdict."""
-        ids, lo, hi, lit = self._whole(holes)
-        halve = (lit > 0) & (self.span_px(holes.centres, lo, hi) > self.settle_px)
-        hi = np.where(halve, (lo + hi) / 2, hi)
-        keep = self._worth(holes, lo, hi, lit)
-        return Intervals(ids[keep], lo[keep], hi[keep])
+    def plan(self, holes: Detections) -> tuple[Intervals, Intervals]:
+        """(probes, covers) of the next pattern, for the holes worth their light (``min_worth``;
+        the others are not drawn and get no verdict):
 
-    def covers(self, holes: Detections) -> Intervals:
-        """Each hole's whole interval -- where its particle may be: what pulsed holes keep dark
-        between exposures -- for the holes worth it (``min_worth``)."""
-        ids, lo, hi, lit = self._whole(holes)
-        keep = self._worth(holes, lo, hi, lit)
-        return Intervals(ids[keep], lo[keep], hi[keep])
-
-    def _whole(self, holes: Detections) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(ids, lo, hi, lit) of each hole's track: its interval and brightness when lit (the
-        whole range and 0 for a track not known yet)."""
+        probes: the interval each hole covers while the camera exposes -- the lower half of its
+            track's interval while that spans more than ``settle_px``, else all of it; a new
+            particle the whole range;
+        covers: each hole's whole interval, where its particle may be: what pulsed holes keep
+            dark between exposures.
+        """
         ids = holes.track_ids
         rows, known = self._find(ids)
         state = self._state[rows] if len(self._ids) else np.zeros((len(ids), 6))
         lo = np.where(known, state[:, _LO], self.w_far)
         hi = np.where(known, state[:, _HI], self.w_near)
-        return ids, lo, hi, np.where(known, state[:, _LIT], 0.0)
+        lit = np.where(known, state[:, _LIT], 0.0)  # 0: not known yet
+        # projector px along each one's line per unit of _t, and its interval's length
+        step = np.hypot(*(_apply(self._h_near, holes.centres) - _apply(self._h_far, holes.centres)).T)
+        whole = step * (_t(hi, self) - _t(lo, self))
+        halve = (lit > 0) & (whole > self.settle_px)
+        mid = np.where(halve, (lo + hi) / 2, hi)
+        probed, covered = self._worth(holes, lit, (np.where(halve, whole / 2, whole), whole))
+        return (Intervals(ids[probed], lo[probed], mid[probed]),
+                Intervals(ids[covered], lo[covered], hi[covered]))
 
-    def _worth(self, holes: Detections, lo: np.ndarray, hi: np.ndarray, lit: np.ndarray) -> np.ndarray:
-        """Whether each hole drawn over [lo, hi] is worth its light (``min_worth``); holes whose
-        particle's brightness is not known are always drawn."""
+    def probes(self, holes: Detections) -> Intervals:
+        """The probes of :meth:`plan`."""
+        return self.plan(holes)[0]
+
+    def covers(self, holes: Detections) -> Intervals:
+        """The whole intervals of :meth:`plan`."""
+        return self.plan(holes)[1]
+
+    def _worth(self, holes: Detections, lit: np.ndarray, lengths: tuple[np.ndarray, ...]) -> list[np.ndarray]:
+        """For each of ``lengths`` (projector px of each hole's segment): whether each hole drawn
+        that long is worth its light (``min_worth``); holes whose particle's brightness is not
+        known are always drawn."""
         total = float(lit[lit > 0].sum())
         if self.projector_size is None or self.min_worth <= 0 or total <= 0:
-            return np.ones(len(lit), bool)
+            return [np.ones(len(lit), bool) for _ in lengths]
         thickness = np.maximum(1.0, np.rint(2 * map_to_projector(holes, self._h_far)[1]))
-        area = thickness * (self.span_px(holes.centres, lo, hi) + thickness)  # caps included
-        field = float(self.projector_size[0] * self.projector_size[1])
-        return (lit <= 0) | (lit / total >= self.min_worth * area / field)
+        least = self.min_worth * float(self.projector_size[0] * self.projector_size[1]) ** -1 * total
+        # lit / total >= min_worth * area / field, the area's caps included
+        return [(lit <= 0) | (lit >= least * thickness * (length + thickness)) for length in lengths]
 
     def intervals(self) -> Intervals:
         """Each known track's whole remaining interval (inverse depths), where its particle may be."""

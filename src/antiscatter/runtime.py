@@ -430,9 +430,9 @@ class _Pipeline:
                 self.probe.observe(seen, self.shown_probes, tracks.ids[coasting], exposure=self.shown_exposure,
                                    coasting_centres=tracks.centres[coasting])
                 self.probe.forget(tracks.ids)
-                probes = self.probe.probes(holes)
+                probes, covers = self.probe.plan(holes)
                 if self.pulse_level is not None:
-                    intervals = self.probe.covers(holes)
+                    intervals = covers
             if self.levels is not None:  # how bright each came back under its own hole (or probe: its verdict)
                 self.levels.update(detections, track_ids, self.unlit_ids if self.probe is None else self.probe.dimmed,
                                    tracks.ids, tracks.ids[tracks.confirmed])

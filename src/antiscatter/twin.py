@@ -327,9 +327,8 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                               tracks.ids, tracks.ids[tracks.confirmed])
             if probe is not None:
                 snapshot = tracker.snapshot()
-                holes = snapshot.holes(t0)
-                probes = probe.probes(holes)
-                return on_at, _Probing(snapshot, probes, probe.covers(holes) if run.strategy == "pulse" else probes)
+                probes, covers = probe.plan(snapshot.holes(t0))
+                return on_at, _Probing(snapshot, probes, covers if run.strategy == "pulse" else probes)
             if run.predict and run.per_refresh:
                 return on_at, tracker.snapshot()
             holes = tracker.holes(on_at + sub_s / 2 if run.predict else t0 + geometry.exposure_s / 2)
