@@ -515,10 +515,12 @@ def test_depth_probe_draws_each_unknown_particle_over_its_epipolar_segment(tmp_p
     assert bad.code == 2 and "probe needs light.strategy dim" in bad.err
 
 
-def test_depth_probe_leaves_out_the_holes_not_worth_their_light(tmp_path, cli):
+@pytest.mark.parametrize("strategy, dark", [("dim", 51), ("pulse", 0)])
+def test_depth_probe_leaves_out_the_holes_not_worth_their_light(tmp_path, cli, strategy, dark):
     # three bright bubbles and a faint grain, all of unknown depth: the grain's segment would take
     # more of the scene's light than its share of the backscatter is worth (--min-worth 0.2, the
-    # default), so it stays lit; with 0 every hole is drawn
+    # default), so it stays lit; with 0 every hole is drawn (dim: the first probe, the far half of
+    # the segment, at the dim level; pulse: between exposures the whole segment dark)
     from antiscatter.calibration import load_calibration
 
     calibration = tmp_path / "cal.json"
@@ -535,15 +537,14 @@ def test_depth_probe_leaves_out_the_holes_not_worth_their_light(tmp_path, cli):
         u, v, w = cal.mapping_at(depth) @ [x, y, 1.0]
         return pattern[int(round(v / w)), int(round(u / w))]
 
-    for worth, grain in (((), 255), (("--min-worth", "0"), 51)):
+    for worth, grain in (((), 255), (("--min-worth", "0"), dark)):
         out = tmp_path / f"pat{len(worth)}"
-        result = cli("run", str(frames), "--strategy", "dim", "--dim-level", "0.2", "--depth", "probe",
+        result = cli("run", str(frames), "--strategy", strategy, "--dim-level", "0.2", "--depth", "probe",
                      "--calibration", str(calibration), "--output", f"files:{out}", *worth)
         assert result.code == 0, result.err
         pattern = cv2.imread(str(out / "0.png"), cv2.IMREAD_UNCHANGED)
-        # each one's first probe: the far half of its segment (3 m .. 0.55 m)
         assert [at(pattern, 100.0, 75.0, d) for d in (3.0, 1.0, 0.6)] == [grain] * 3, worth
-        assert [at(pattern, 70.0, 40.0, d) for d in (3.0, 1.0, 0.6)] == [51] * 3, worth
+        assert [at(pattern, 70.0, 40.0, d) for d in (3.0, 1.0, 0.6)] == [dark] * 3, worth
     bad = cli("run", str(frames), "--min-worth", "-1", "--output", "none")
     assert bad.code == 2 and "light.min_worth: got -1.0, allowed a number >= 0" in bad.err
 

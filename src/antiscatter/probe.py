@@ -489,9 +489,9 @@ class DepthProbe:
         if self.projector_size is None or self.min_worth <= 0 or total <= 0:
             return [np.ones(len(lit), bool) for _ in lengths]
         thickness = np.maximum(1.0, np.rint(2 * map_to_projector(holes, self._h_far)[1]))
-        least = self.min_worth * float(self.projector_size[0] * self.projector_size[1]) ** -1 * total
-        # lit / total >= min_worth * area / field, the area's caps included
-        return [(lit <= 0) | (lit >= least * thickness * (length + thickness)) for length in lengths]
+        field = float(self.projector_size[0] * self.projector_size[1])
+        per_px = self.min_worth * total / field  # lit / total >= min_worth * area / field
+        return [(lit <= 0) | (lit >= per_px * thickness * (length + thickness)) for length in lengths]  # caps in
 
     def intervals(self) -> Intervals:
         """Each known track's whole remaining interval (inverse depths), where its particle may be."""
