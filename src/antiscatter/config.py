@@ -193,10 +193,10 @@ STRATEGIES = ("none", "dim", "pulse", "flash", "coast")
 #: what ``auto`` picks on the vehicle (the camera as source), with tracking and prediction on:
 #: dim holes keep darkened particles visible, so tracks and (with a baseline) depth probing go
 #: on, whatever the camera's timing.  In the twin (120 Hz projector, 60 Hz camera, 5 ms; mixed
-#: scene): co-located, dim removes 0.85 keeping 0.94 of the scene light (coasting 0.63 / 0.87);
-#: at 12 cm with depth probing 0.70 / 0.86.  ``pulse`` does better there -- 0.89 / 0.94
-#: co-located, 0.79 / 0.81 probing at 12 cm, and 0.93 / 0.96 with a 480 Hz projector (a full
-#: flash 0.85 / 0.94) -- but the twin exposes the camera inside one projector refresh, which
+#: scene, the scoreboard's three scenes): co-located, dim removes 0.88 keeping 0.96 of the scene
+#: light (coasting 0.72 / 0.94); at 12 cm with depth probing 0.74 / 0.94.  ``pulse`` does better
+#: there -- 0.91 / 0.96 co-located, 0.82 / 0.93 probing at 12 cm, and 0.93 / 0.97 with a 480 Hz
+#: projector (a full flash 0.85 / 0.94) -- but the twin exposes the camera inside one projector refresh, which
 #: needs the camera locked to the projector (the IMX296's external trigger on the projector's
 #: vsync).  A free-running camera gives each pulse or flash the next exposure that starts after
 #: it went on: the earlier one is skipped, which about halves the frame rate, and the pulse
