@@ -464,9 +464,7 @@ class DepthProbe:
         lo = np.where(known, state[:, _LO], self.w_far)
         hi = np.where(known, state[:, _HI], self.w_near)
         lit = np.where(known, state[:, _LIT], 0.0)  # 0: not known yet
-        # projector px along each one's line per unit of _t, and its interval's length
-        step = np.hypot(*(_apply(self._h_near, holes.centres) - _apply(self._h_far, holes.centres)).T)
-        whole = step * (_t(hi, self) - _t(lo, self))
+        whole = self.span_px(holes.centres, lo, hi)  # projector px of each one's interval
         halve = (lit > 0) & (whole > self.settle_px)
         mid = np.where(halve, (lo + hi) / 2, hi)
         probed, covered = self._worth(holes, lit, (np.where(halve, whole / 2, whole), whole))

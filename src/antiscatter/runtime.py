@@ -456,7 +456,6 @@ class _Pipeline:
         t_start = self.clock()
         buffer = self.buffers[self.next_buffer]
         self.next_buffer = (self.next_buffer + 1) % len(self.buffers)
-        rec.hole_ids = rec.pattern.track_ids
         if self.probe is not None:
             holes, margin = rec.pattern, self.config.pattern.margin
             rec.hole_ids = Intervals.of(rec.probes).ids  # the holes worth drawing (DepthProbe.min_worth)
@@ -473,6 +472,7 @@ class _Pipeline:
                                                  hole=self.pulse_level if grey is None else grey, given_only=True)
         else:
             holes = rec.pattern
+            rec.hole_ids = holes.track_ids
             draw = {"size": self.projector_size, "mapping": self.mapping, "margin": self.config.pattern.margin}
             grey = self.levels.grey(holes.track_ids, len(holes)) if self.levels is not None else None
             if grey is not None and self.pulse_level is not None:
