@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from scipy.optimize import linear_sum_assignment
 
 from antiscatter.assignment import gates, match
 
@@ -56,7 +57,6 @@ def test_gates_rule():
 @pytest.mark.parametrize("count, field, gate", [(300, 400, 3.0), (700, 300, 6.0)])
 def test_many_particles_match_exactly_against_a_dense_solution(count, field, gate):
     # the second case's candidate groups are too many for one dense problem: solved group by group
-    from scipy.optimize import linear_sum_assignment
     rng = np.random.default_rng(0)
     truth = rng.uniform(0, field, (count, 2))
     dets = truth + rng.normal(0, 1.0, truth.shape)
@@ -70,18 +70,35 @@ def test_many_particles_match_exactly_against_a_dense_solution(count, field, gat
     assert np.isclose(d[m[:, 0], m[:, 1]].sum(), cost[a[ok], b[ok]].sum())
 
 
-def test_all_distances_at_once_and_the_k_d_tree_give_the_same_matches(monkeypatch):
-    # up to DENSE_PAIRS pairs the candidates come from the full distance matrix, beyond it (or when
-    # a gate holds more than `neighbours` detections) from a k-d tree: the same matches either way
-    from antiscatter import assignment
+def test_candidates_are_the_nearest_detections_inside_each_gate():
+    # the sweep along x against every distance at once: each truth point's candidates are the
+    # `neighbours` nearest detections within its gate, whatever the gates' sizes (crowded ones too)
+    from antiscatter.assignment import _candidates
 
     rng = np.random.default_rng(11)
-    cases = []
-    for _ in range(200):
-        nt, nd = rng.integers(0, 50), rng.integers(0, 50)
-        cases.append((rng.uniform(0, 100, (nt, 2)), rng.uniform(1, 15, nt), rng.uniform(0, 100, (nd, 2))))
-    dense = [assignment.match(*case) for case in cases]
-    monkeypatch.setattr(assignment, "DENSE_PAIRS", 0)
-    for case, got in zip(cases, dense):
-        for a, b in zip(got, assignment.match(*case)):
-            np.testing.assert_array_equal(a, b)
+    for _ in range(300):
+        nt, nd = rng.integers(1, 60), rng.integers(1, 60)
+        truth, dets = rng.uniform(0, 100, (nt, 2)), rng.uniform(0, 100, (nd, 2))
+        gate = rng.uniform(0.5, rng.choice([5.0, 15.0, 40.0]), nt)
+        k = int(rng.integers(1, 10))
+        rows, cols, dist = _candidates(truth, gate, dets, k)
+        d = np.hypot(*(truth[:, None, :] - dets[None, :, :]).transpose(2, 0, 1))
+        for t in range(nt):
+            inside = np.flatnonzero(d[t] <= gate[t])
+            nearest = inside[np.argsort(d[t, inside], kind="stable")][:k]
+            assert sorted(cols[rows == t].tolist()) == sorted(nearest.tolist())
+        np.testing.assert_allclose(dist, d[rows, cols])
+
+
+def test_crowded_gates_still_give_an_optimal_assignment():
+    # wide gates over a crowded field: far more than `neighbours` detections in most gates; the
+    # matches are as many, at the same summed distance, as a dense solution over every pair
+    rng = np.random.default_rng(3)
+    truth = rng.uniform(0, 60, (40, 2))
+    dets = truth + rng.normal(0, 1.0, truth.shape)
+    gate = np.full(40, 25.0)
+    m, _, _ = match(truth, gate, dets)
+    d = np.hypot(*(truth[:, None, :] - dets[None, :, :]).transpose(2, 0, 1))
+    a, b = linear_sum_assignment(np.where(d <= 25.0, d, 1e6))
+    assert len(m) == 40
+    assert np.isclose(d[m[:, 0], m[:, 1]].sum(), d[a, b].sum())

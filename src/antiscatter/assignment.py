@@ -9,14 +9,8 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 __all__ = ["match", "gates"]
-
-
-#: up to this many (truth, detection) pairs the candidates come from all their distances at once
-#: rather than a k-d tree (tracking 100-300 particles a frame: about 300 x 300)
-DENSE_PAIRS = 90_000
 
 
 def gates(truth_radii: np.ndarray, *, min_gate: float = 2.0, scale: float = 1.0) -> np.ndarray:
@@ -32,7 +26,7 @@ def match(truth_centres: np.ndarray, truth_gates: np.ndarray, det_centres: np.nd
     Only pairs closer than the truth particle's gate may match; among those the
     assignment maximises the number of matches, then minimises the summed
     distance.  The candidates of each truth point are its ``neighbours``
-    nearest detections inside its gate (a k-d tree query); the problem is split
+    nearest detections inside its gate (:func:`_candidates`); the problem is split
     into the connected groups of candidate pairs, each solved exactly with
     SciPy's ``linear_sum_assignment``, so hundreds of particles cost little.
     (Exact whenever no gate holds more than ``neighbours`` detections.)
@@ -55,25 +49,7 @@ def match(truth_centres: np.ndarray, truth_gates: np.ndarray, det_centres: np.nd
     if nt == 0 or nd == 0:
         return np.empty((0, 2), np.int64), np.arange(nt), np.arange(nd)
     truth_gates = np.asarray(truth_gates, dtype=np.float64)
-    # the `neighbours` nearest detections within each gate are the candidates
-    k = min(neighbours, nd)
-    rows = None
-    if nt * nd <= DENSE_PAIRS:  # all distances at once: cheaper than building and querying a tree
-        d2 = np.square(truth_centres[:, None, 0] - det_centres[None, :, 0])
-        d2 += np.square(truth_centres[:, None, 1] - det_centres[None, :, 1])
-        near = np.flatnonzero(d2 <= np.square(truth_gates * (1 + 1e-9))[:, None])
-        if near.size == 0 or np.bincount(near // nd).max() <= k:  # no gate holds more than k: all are candidates
-            rows, cols = np.divmod(near, nd)
-            dist = np.sqrt(d2.ravel()[near])
-            ok = dist <= truth_gates[rows]
-            rows, cols, dist = rows[ok], cols[ok], dist[ok]
-    if rows is None:
-        tree = cKDTree(det_centres)
-        dist, cols = tree.query(truth_centres, k=k, distance_upper_bound=float(truth_gates.max()) * (1 + 1e-9))
-        dist, cols = dist.reshape(nt, k), cols.reshape(nt, k)
-        ok = dist <= truth_gates[:, None]
-        rows = np.broadcast_to(np.arange(nt)[:, None], ok.shape)[ok]
-        cols, dist = cols[ok], dist[ok]
+    rows, cols, dist = _candidates(truth_centres, truth_gates, det_centres, min(neighbours, nd))
     if len(rows) == 0:
         return np.empty((0, 2), np.int64), np.arange(nt), np.arange(nd)
     rows, cols = rows.astype(np.intp), cols.astype(np.int64)
@@ -120,3 +96,41 @@ def match(truth_centres: np.ndarray, truth_gates: np.ndarray, det_centres: np.nd
     free_dets[matches[:, 1]] = False
     unmatched_truth, unmatched_dets = np.flatnonzero(free_truth), np.flatnonzero(free_dets)
     return matches, unmatched_truth, unmatched_dets
+
+
+def _candidates(truth_centres: np.ndarray, truth_gates: np.ndarray, det_centres: np.ndarray,
+                neighbours: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(rows, cols, distances) of the candidate pairs: for each truth point, its ``neighbours``
+    nearest detections within its gate.
+
+    A sweep along x: the detections sorted by x, each truth point's slice of them within its gate
+    found by binary search, and the distances of those pairs alone.  Before, every distance at
+    once (and a k-d tree query besides where a gate held more than ``neighbours``): on the 119
+    association problems of the tracker over the mixed scene (median 258 tracks, 235 detections,
+    gates of 3-27 px) :func:`match` took 0.20-0.30 ms against 1.1-1.5 (medians of five rounds
+    each, interleaved, dev VM); the same matches (ids identical over the run), and on 3000 random
+    problems the same pairs wherever no two detections coincide (where they do, an equally short
+    assignment)."""
+    nt = len(truth_centres)
+    order = np.argsort(det_centres[:, 0], kind="stable")
+    xs = det_centres[order, 0]
+    x, y = truth_centres[:, 0], truth_centres[:, 1]
+    reach = truth_gates * (1 + 1e-9)
+    lo = np.searchsorted(xs, x - reach, side="left")
+    counts = np.searchsorted(xs, x + reach, side="right") - lo
+    total = int(counts.sum())
+    if total == 0:
+        return np.empty(0, np.intp), np.empty(0, np.intp), np.empty(0)
+    rows = np.repeat(np.arange(nt), counts)
+    # each pair's place in the sorted detections: its row's first, plus its rank in the row
+    cols = order[np.arange(total) + np.repeat(lo - (np.cumsum(counts) - counts), counts)]
+    dist = np.hypot(x[rows] - det_centres[cols, 0], y[rows] - det_centres[cols, 1])
+    ok = dist <= truth_gates[rows]
+    rows, cols, dist = rows[ok], cols[ok], dist[ok]
+    if len(rows) and np.bincount(rows).max() > neighbours:  # only the nearest few of a crowded gate
+        by_distance = np.lexsort((dist, rows))
+        rows, cols, dist = rows[by_distance], cols[by_distance], dist[by_distance]
+        first = np.searchsorted(rows, rows, side="left")
+        keep = np.arange(len(rows)) - first < neighbours
+        rows, cols, dist = rows[keep], cols[keep], dist[keep]
+    return rows, cols, dist
