@@ -16,6 +16,22 @@ def test_the_tracker_benchmark_script_runs_and_reports_its_medians():
     assert "Tracker.update: median" in out.stdout and "dense Hungarian alone (20x20): median" in out.stdout
 
 
+def test_the_tracker_benchmark_times_the_default_detectors_detections_in_a_scene():
+    out = subprocess.run([sys.executable, str(SCRIPTS / "bench_tracker.py"), "--particles", "20", "--frames", "12",
+                          "--preset", "mixed"], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    scene = [line for line in out.stdout.splitlines() if line.startswith("scene mixed (800x600, 12 frames")]
+    assert len(scene) == 1 and int(scene[0].split("median ")[1].split()[0]) > 50  # the scene's particles
+    assert "Tracker.update on its detections: median" in out.stdout
+
+
+def test_the_tracker_benchmark_turns_down_an_unknown_preset():
+    out = subprocess.run([sys.executable, str(SCRIPTS / "bench_tracker.py"), "--preset", "lava"],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and "--preset" in out.stderr and "lava" in out.stderr
+    assert "Traceback" not in out.stderr and out.stdout == ""
+
+
 @pytest.mark.parametrize("script", ["bench_tracker.py", "bench_probe.py"])
 @pytest.mark.parametrize("args", [["--particles", "0"], ["--frames", "-3"], ["--frames", "many"]])
 def test_the_benchmark_scripts_turn_down_counts_below_one(script, args):

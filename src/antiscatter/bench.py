@@ -41,12 +41,19 @@ def _at_least_one(text: str) -> int:
     return value
 
 
-def particle_bench_args(description: str | None, *, particles: int = 300, frames: int = 300) -> argparse.Namespace:
+def particle_bench_args(description: str | None, *, particles: int = 300, frames: int = 300,
+                        preset: bool = False) -> argparse.Namespace:
     """``--particles`` and ``--frames`` (each an integer >= 1; else argparse's error, exit 2) of the
-    scripts that time one part of the chain for N particles over a number of frames."""
+    scripts that time one part of the chain for N particles over a number of frames; with
+    ``preset``, also ``--preset NAME`` (a simulator preset, else argparse's error; default none)."""
     parser = argparse.ArgumentParser(description=description)
     parser.add_argument("--particles", type=_at_least_one, default=particles)
     parser.add_argument("--frames", type=_at_least_one, default=frames)
+    if preset:
+        from .simulate import PRESETS
+
+        parser.add_argument("--preset", choices=sorted(PRESETS), default=None,
+                            help="also time the tracker on the default detector's detections in this scene")
     return parser.parse_args()
 
 

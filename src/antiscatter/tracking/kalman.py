@@ -241,15 +241,17 @@ class Tracker:
         pp, pv, vv = self.pp[t], self.pv[t], self.vv[t]
         s_pos = pp + m_pos  # innovation variance per axis
         k_p, k_v = pp / s_pos, pv / s_pos  # Kalman gains for position and velocity
-        innovation = detections.centres[k] - self.x[t, 0:2]
-        self.x[t, 0:2] += k_p * innovation
-        self.x[t, 2:4] += k_v * innovation
+        x = self.x[t]  # the matched rows, gathered once and written back once
+        innovation = detections.centres[k] - x[:, 0:2]
+        x[:, 0:2] += k_p * innovation
+        x[:, 2:4] += k_v * innovation
         self.pp[t] = (1 - k_p) * pp
         self.pv[t] = (1 - k_p) * pv
         self.vv[t] = vv - k_v * pv
         rr = self.rr[t]
         k_r = rr / (rr + m_rad)
-        self.x[t, 4] += k_r * (detections.radii[k] - self.x[t, 4])
+        x[:, 4] += k_r * (detections.radii[k] - x[:, 4])
+        self.x[t] = x
         self.rr[t] = (1 - k_r) * rr
         self.hits[t] += 1
         self.misses[t] = 0
@@ -386,7 +388,8 @@ class Tracker:
         if k == 0 or len(confirmed) < k or len(centres) == 0:
             return np.zeros((len(centres), 2))
         # a few births a frame among hundreds of tracks: all distances at once beat building a tree
-        d2 = ((centres[:, None, :] - self.x[None, confirmed, :2]) ** 2).sum(axis=2)  # (M, C)
+        d2 = np.square(centres[:, 0, None] - self.x[confirmed, 0])  # (M, C)
+        d2 += np.square(centres[:, 1, None] - self.x[confirmed, 1])
         nearest = np.argpartition(d2, k - 1, axis=1)[:, :k]
         velocities = np.sort(self.x[confirmed, 2:4][nearest], axis=1)  # (M, k, 2), per axis
         middle = k // 2
