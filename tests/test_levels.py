@@ -18,39 +18,39 @@ def test_a_dimmed_particle_is_brought_to_the_target_flux_at_most_halving_a_frame
     found, ids = seen([400.0], [7])
     levels.update(found, ids, dimmed=np.array([7]), alive=np.array([7]), confirmed=np.array([7]))
     # at 0.1 it sent back 400: 40 needs 0.01, but a level falls at most by half a frame
-    assert levels.of(np.array([7]), 1)[0] == pytest.approx(0.05)
+    assert levels.of(np.array([7]))[0] == pytest.approx(0.05)
     found, ids = seen([200.0], [7])  # at 0.05, 200: on target at 0.01
     levels.update(found, ids, dimmed=np.array([7]), alive=np.array([7]), confirmed=np.array([7]))
-    assert levels.of(np.array([7]), 1)[0] == pytest.approx(0.025)
+    assert levels.of(np.array([7]))[0] == pytest.approx(0.025)
     found, ids = seen([100.0], [7])
     levels.update(found, ids, dimmed=np.array([7]), alive=np.array([7]), confirmed=np.array([7]))
-    assert levels.of(np.array([7]), 1)[0] == pytest.approx(0.0125)
+    assert levels.of(np.array([7]))[0] == pytest.approx(0.0125)
     found, ids = seen([50.0], [7])
     levels.update(found, ids, dimmed=np.array([7]), alive=np.array([7]), confirmed=np.array([7]))
-    assert levels.of(np.array([7]), 1)[0] == pytest.approx(0.01)  # on target: it stays
+    assert levels.of(np.array([7]))[0] == pytest.approx(0.01)  # on target: it stays
     # a faint one asks for more than the ceiling: it gets the ceiling
     found, ids = seen([10.0], [7])
     levels.update(found, ids, dimmed=np.array([7]), alive=np.array([7]), confirmed=np.array([7]))
-    assert levels.of(np.array([7]), 1)[0] == pytest.approx(0.04)
+    assert levels.of(np.array([7]))[0] == pytest.approx(0.04)
     found, ids = seen([1.0], [7])
     levels.update(found, ids, dimmed=np.array([7]), alive=np.array([7]), confirmed=np.array([7]))
-    assert levels.of(np.array([7]), 1)[0] == pytest.approx(0.1)
+    assert levels.of(np.array([7]))[0] == pytest.approx(0.1)
 
 
 def test_a_particle_lost_under_its_hole_gets_twice_the_light_and_never_less_again():
     levels = HoleLevels(0.1, floor=0.02, target=40.0)
     found, ids = seen([4000.0], [3])  # new, seen in full light: straight to what it needs (the floor here)
     levels.update(found, ids, dimmed=None, alive=np.array([3]), confirmed=np.array([3]))
-    assert levels.of(np.array([3]), 1)[0] == pytest.approx(0.02)
+    assert levels.of(np.array([3]))[0] == pytest.approx(0.02)
     nothing = Detections.empty(), np.empty(0, np.int64)
     levels.update(*nothing, dimmed=np.array([3]), alive=np.array([3]), confirmed=np.array([3]))
-    assert levels.of(np.array([3]), 1)[0] == pytest.approx(0.04)  # missed in the dark of its own hole
+    assert levels.of(np.array([3]))[0] == pytest.approx(0.04)  # missed in the dark of its own hole
     found, ids = seen([4000.0], [3])
     levels.update(found, ids, dimmed=np.array([3]), alive=np.array([3]), confirmed=np.array([3]))
-    assert levels.of(np.array([3]), 1)[0] == pytest.approx(0.04)  # as bright as ever: not below 0.04
+    assert levels.of(np.array([3]))[0] == pytest.approx(0.04)  # as bright as ever: not below 0.04
     # a track missed while it had no hole on it (a miss of the detector's): its level stays
     levels.update(*nothing, dimmed=None, alive=np.array([3]), confirmed=np.array([3]))
-    assert levels.of(np.array([3]), 1)[0] == pytest.approx(0.04)
+    assert levels.of(np.array([3]))[0] == pytest.approx(0.04)
 
 
 def test_only_confirmed_tracks_are_turned_down():
@@ -58,22 +58,21 @@ def test_only_confirmed_tracks_are_turned_down():
     levels = HoleLevels(0.1, floor=0.02, target=40.0)
     found, ids = seen([4000.0, 4000.0], [1, 2])
     levels.update(found, ids, dimmed=np.array([1, 2]), alive=np.array([1, 2]), confirmed=np.array([2]))
-    assert levels.of(np.array([1, 2]), 2) == pytest.approx([0.1, 0.05])
+    assert levels.of(np.array([1, 2])) == pytest.approx([0.1, 0.05])
     levels.update(found, ids, dimmed=np.array([1, 2]), alive=np.array([1, 2]), confirmed=np.array([1, 2]))
-    assert levels.of(np.array([1, 2]), 2) == pytest.approx([0.05, 0.025])  # from the ceiling, by half
+    assert levels.of(np.array([1, 2])) == pytest.approx([0.05, 0.025])  # from the ceiling, by half
 
 
 def test_unknown_tracks_untracked_holes_and_scores_that_are_no_flux_get_the_ceiling():
     levels = HoleLevels(0.2, floor=0.02, target=40.0)
     found, ids = seen([np.nan, 500.0, 500.0], [1, 2, -1])  # the seed detector's scores are NaN
     levels.update(found, ids, dimmed=np.array([1, 2]), alive=np.array([1, 2]), confirmed=np.array([1, 2]))
-    assert levels.of(np.array([1, 2, -1, 99]), 4) == pytest.approx([0.2, 0.1, 0.2, 0.2])
-    assert levels.of(None, 2) == pytest.approx([0.2, 0.2])
-    assert levels.grey(np.array([1, 2]), 2).tolist() == [51, 26]
+    assert levels.of(np.array([1, 2, -1, 99])) == pytest.approx([0.2, 0.1, 0.2, 0.2])
+    assert levels.grey(np.array([1, 2])).tolist() == [51, 26]
     # tracks the tracker no longer holds are forgotten
     levels.update(Detections.empty(), np.empty(0, np.int64), dimmed=None, alive=np.array([1]),
                   confirmed=np.array([1]))
-    assert levels.ids.tolist() == [1] and levels.of(np.array([2]), 1)[0] == pytest.approx(0.2)
+    assert levels.ids.tolist() == [1] and levels.of(np.array([2]))[0] == pytest.approx(0.2)
     with pytest.raises(ValueError, match="floor, ceiling"):
         HoleLevels(0.1, floor=0.2)
     with pytest.raises(ValueError, match="target, fall, rise"):
@@ -95,5 +94,5 @@ def test_ids_the_tracker_no_longer_holds_touch_no_other_track():
     levels = HoleLevels(0.1, floor=0.02, target=40.0)
     found, ids = seen([4000.0], [1])
     levels.update(found, ids, dimmed=np.array([1, 999]), alive=np.array([1, 2]), confirmed=np.array([1, 2, 998]))
-    assert levels.of(np.array([1, 2]), 2) == pytest.approx([0.05, 0.1])  # 2: not under a hole, not missed
+    assert levels.of(np.array([1, 2])) == pytest.approx([0.05, 0.1])  # 2: not under a hole, not missed
     assert levels.least.tolist() == [0.0, 0.0]

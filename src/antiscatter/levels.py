@@ -123,17 +123,15 @@ class HoleLevels:
             level[tentative] = self.ceiling  # not yet confirmed
         self.ids, self.level, self.least = alive, level, least
 
-    def of(self, track_ids: np.ndarray | None, count: int) -> np.ndarray:
-        """(count,) levels of the holes of ``track_ids`` (-1 or None: ``ceiling``)."""
-        if track_ids is None:
-            return np.full(count, self.ceiling)
+    def of(self, track_ids: np.ndarray) -> np.ndarray:
+        """Levels of the holes of ``track_ids`` (-1, an untracked hole: ``ceiling``)."""
         ids = np.asarray(track_ids, np.int64)
         level, _ = self._lookup(ids)
         return np.where(ids >= 0, level, self.ceiling)
 
-    def grey(self, track_ids: np.ndarray | None, count: int) -> np.ndarray:
+    def grey(self, track_ids: np.ndarray) -> np.ndarray:
         """:meth:`of` as the projector's grey levels, 0..255."""
-        return np.rint(self.of(track_ids, count) * 255.0).astype(np.uint8)
+        return np.rint(self.of(track_ids) * 255.0).astype(np.uint8)
 
 
 

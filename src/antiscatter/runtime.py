@@ -459,7 +459,7 @@ class _Pipeline:
         if self.probe is not None:
             holes, margin = rec.pattern, self.config.pattern.margin
             rec.hole_ids = Intervals.of(rec.probes).ids  # the holes worth drawing (DepthProbe.min_worth)
-            grey = self.levels.grey(holes.track_ids, len(holes)) if self.levels is not None else None
+            grey = self.levels.grey(holes.track_ids) if self.levels is not None else None
             # pulse: between exposures each track's whole interval is dark; the probe's half is
             # only needed while the camera looks, lifted to the dim level (or each track's own)
             rec.pattern = self.probe.render(holes, rec.probes if rec.intervals is None else rec.intervals,
@@ -474,7 +474,7 @@ class _Pipeline:
             holes = rec.pattern
             rec.hole_ids = holes.track_ids
             draw = {"size": self.projector_size, "mapping": self.mapping, "margin": self.config.pattern.margin}
-            grey = self.levels.grey(holes.track_ids, len(holes)) if self.levels is not None else None
+            grey = self.levels.grey(holes.track_ids) if self.levels is not None else None
             if grey is not None and self.pulse_level is not None:
                 # pulse: each hole at its own level while the camera looks; between exposures the same
                 # holes dark, wherever the lifted pattern is not full (40 us, not a second drawing's 460)

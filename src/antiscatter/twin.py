@@ -231,7 +231,7 @@ def _holes_pattern(holes: Detections, run: TwinRun, *, size: tuple[int, int], ma
     ``lifted``); None: ``dim_level`` for all.
     """
     dim = run.strategy == "dim" or lifted
-    own = levels.grey(holes.track_ids, len(holes)) if dim and levels is not None else 0
+    own = levels.grey(holes.track_ids) if dim and levels is not None else 0
     if segments is not None:
         # probing: only the holes the probe found worth drawing (its intervals); else the whole range
         pattern = segments.render(holes, probes or {}, size=size, margin=run.margin_px, out=buffer, hole=own,
