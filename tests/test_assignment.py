@@ -56,7 +56,7 @@ def test_gates_rule():
 
 @pytest.mark.parametrize("count, field, gate", [(300, 400, 3.0), (700, 300, 6.0)])
 def test_many_particles_match_exactly_against_a_dense_solution(count, field, gate):
-    # the second case's candidate groups are too many for one dense problem: solved group by group
+    # the second case's candidate groups are too many for one dense problem: solved as one sparse problem
     rng = np.random.default_rng(0)
     truth = rng.uniform(0, field, (count, 2))
     dets = truth + rng.normal(0, 1.0, truth.shape)
