@@ -146,6 +146,20 @@ def test_bench_modes_reports_every_mode(cli):
         assert 0 < m["latency_p50_ms"] <= m["latency_p99_ms"] <= m["latency_max_ms"]
 
 
+def test_bench_modes_as_on_the_vehicle_times_the_tracker_too(cli):
+    import json
+    plain = json.loads(cli("bench", "--modes", "--frames", "15", "--sizes", "320x240", "--json").out)["modes"]
+    assert all(m["tracking_mean_ms"] is None for m in plain)  # files and the simulator: no tracking
+    result = cli("bench", "--modes", "--vehicle", "--frames", "15", "--sizes", "320x240")
+    assert result.code == 0, result.err
+    assert "as on the vehicle: tracking with prediction" in result.out and "tracking" in result.out.splitlines()[2]
+    modes = json.loads(cli("bench", "--modes", "--vehicle", "--frames", "15", "--sizes", "320x240", "--json").out)["modes"]
+    for m in modes:
+        assert m["frames"] == 15 and 0 < m["tracking_mean_ms"] < m["latency_max_ms"]
+    wrong = cli("bench", "--vehicle", "--frames", "5")
+    assert wrong.code == 2 and "--vehicle: goes with --modes" in wrong.err and "Traceback" not in wrong.err
+
+
 def test_emulated_camera_blocks_until_the_next_exposure():
     from antiscatter.sources.replay import ReplaySource
     source = ReplaySource([np.zeros((4, 4), np.uint8)], frames=10, fps=200)

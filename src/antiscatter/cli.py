@@ -324,6 +324,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "webcam; default) or y: the luma plane alone, as the Pi camera's YUV420 stream gives it")
     be.add_argument("--modes", action="store_true", help="instead: the simulator through every execution "
                     "mode of run (single, threads): throughput, end-to-end latency p50/p99/max, drops")
+    be.add_argument("--vehicle", action="store_true", help="with --modes: run as on the vehicle (auto with the "
+                    "camera: tracking with prediction, dim holes at their own levels), not as for files")
     be.add_argument("--json", action="store_true", help="print the results as JSON")
     be.add_argument("--plot", metavar="FILE.png", help="per-stage box plot")
     return parser
@@ -503,6 +505,8 @@ def _bench(args: argparse.Namespace) -> int:
         raise UsageError(f"--frames {args.frames}: allowed a positive number")
     if args.threads < 1:
         raise UsageError(f"--threads {args.threads}: allowed >= 1")
+    if args.vehicle and not args.modes:
+        raise UsageError("--vehicle: goes with --modes (the per-stage bench times the detectors alone)")
     if args.plot:
         check_output_path(args.plot, "--plot")
     names = [n.strip() for n in args.detectors.split(",")] if args.detectors else list(DETECTORS)
@@ -516,7 +520,8 @@ def _bench(args: argparse.Namespace) -> int:
     if args.modes:
         from .bench import bench_modes, format_modes
 
-        modes = bench_modes(frames=args.frames, sizes=tuple(sizes), detector=names[0] if args.detectors else "contrast")
+        modes = bench_modes(frames=args.frames, sizes=tuple(sizes), detector=names[0] if args.detectors else "contrast",
+                            vehicle=args.vehicle)
         print(json.dumps({"machine": __import__("antiscatter.bench", fromlist=["x"]).machine_description(),
                           "modes": modes}, indent=2) if args.json else format_modes(modes))
         return 0
