@@ -53,7 +53,7 @@ def particle_bench_args(description: str | None, *, particles: int = 300, frames
         from .simulate import PRESETS
 
         parser.add_argument("--preset", choices=sorted(PRESETS), default=None,
-                            help="also time the tracker on the default detector's detections in this scene")
+                            help="also time it on the default detector's detections in this simulator scene")
     return parser.parse_args()
 
 

@@ -518,12 +518,12 @@ def _bench(args: argparse.Namespace) -> int:
         check_frame_size(w, h, what="--sizes: frames", error=UsageError)
         sizes.append((w, h, "fullres" if w * h > 800 * 600 else "mixed"))
     if args.modes:
-        from .bench import bench_modes, format_modes
+        from .bench import bench_modes, format_modes, machine_description
 
         modes = bench_modes(frames=args.frames, sizes=tuple(sizes), detector=names[0] if args.detectors else "contrast",
                             vehicle=args.vehicle)
-        print(json.dumps({"machine": __import__("antiscatter.bench", fromlist=["x"]).machine_description(),
-                          "modes": modes}, indent=2) if args.json else format_modes(modes))
+        print(json.dumps({"machine": machine_description(), "modes": modes}, indent=2) if args.json
+              else format_modes(modes))
         return 0
     result = bench(detectors=names, frames=args.frames, threads=args.threads, sizes=tuple(sizes),
                    input=args.input)

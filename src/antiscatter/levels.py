@@ -134,7 +134,6 @@ class HoleLevels:
         return np.rint(self.of(track_ids) * 255.0).astype(np.uint8)
 
 
-
 def _rows(ordered: np.ndarray, ids: np.ndarray) -> np.ndarray:
     """The row of each of ``ids`` in the ascending ``ordered`` (-1 where it is not there)."""
     at, found = rows_in(ordered, ids)

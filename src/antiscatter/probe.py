@@ -545,7 +545,8 @@ class DepthProbe:
             step = (b - a) * (inset / np.maximum(length, 1e-9))[:, None]
             a, b = a + step, b - step
         grey = np.broadcast_to(np.asarray(hole, np.int64), (len(holes),))
-        order = np.argsort(grey, kind="stable")  # the brightest drawn last
+        # one level for all: drawn in order; one per hole: the brightest last
+        order = np.arange(len(holes)) if np.ndim(hole) == 0 else np.argsort(grey, kind="stable")
         if given_only:
             order = order[given[order]]
         for (ax, ay), (bx, by), t, g in zip((a[order] * 16).round().astype(np.int64).tolist(),
