@@ -466,17 +466,18 @@ def test_compensation_tells_the_detector_the_light_of_the_last_pattern(tmp_path,
 
     def recording(name, params=None):
         detector = real(name, params)
-        return dataclasses.replace(detector, set_light=lambda light: (seen.append(light), detector.set_light(light)))
+        return dataclasses.replace(detector, set_light=lambda light: (seen.append(None if light is None else light.copy()),
+                                                                     detector.set_light(light)))
 
     monkeypatch.setattr(runtime, "make_detector", recording)
     frames = _disc_frames(tmp_path)
     config = load_config(overrides={"source": {"spec": str(frames)}, "output": {"outputs": ("none",)},
                                     "light": {"strategy": strategy, "compensate": True, "dim_level": 0.2}})
     runtime.run(config, log=__import__("io").StringIO(), out=__import__("io").StringIO())
-    assert len(seen) == 4 and seen[0].shape == (60, 80)  # half the 160x120 camera frame
+    assert len(seen) == 4 and seen[0].shape == (120, 160)  # the camera's pixels
     # the particle at (30, 40) had a dim hole (pulse: dark, lifted for the exposure): its place is
     # dark in the light map, the rest lit
-    assert seen[0][20, 15] == 51 and seen[0][100 // 2 - 10, 150 // 2] == 255
+    assert seen[0][40, 30] == 51 and seen[0][80, 150] == 255
     assert load_config().light.compensate is False  # replays never saw the light
     assert load_config().light.levels == "fixed"  # nor adapted hole levels to it
     assert load_config(overrides={"source": {"spec": "camera"}}).light.levels == "adaptive"

@@ -42,3 +42,22 @@ def test_homography_radius_keeps_local_area():
     centres, radii = map_to_projector(Detections([[10, 20]], [3]), h)
     np.testing.assert_allclose(centres, [[30, 5]])
     np.testing.assert_allclose(radii, [3.0])
+
+
+def test_camera_light_puts_each_hole_back_where_the_camera_sees_its_particle():
+    from antiscatter.pattern import camera_light
+
+    camera, projector = (640, 480), (1280, 800)
+    mapping = np.array([[1.9, 0.1, 12.0], [0.05, 1.6, -8.0], [1e-5, 2e-5, 1.0]])  # camera -> projector
+    holes = Detections([[100.0, 80.0], [500.0, 400.0]], [8.0, 8.0])
+    pattern = render_pattern(holes, size=projector, mapping=mapping, hole=51)
+    light = camera_light(pattern, np.linalg.inv(mapping), camera)
+    assert light.shape == (480, 640) and light.dtype == np.uint8
+    yy, xx = np.mgrid[0:480, 0:640]
+    for x, y in holes.centres:
+        near = np.hypot(xx - x, yy - y)
+        assert (light[near < 6] == 51).all() and (light[(near > 10) & (near < 30)] == 255).all()
+    # outside the projector's field: full, no pattern there to explain
+    assert camera_light(pattern, np.linalg.inv(mapping) @ np.diag([0.25, 0.25, 1.0]), camera)[400, 600] == 255
+    as_float = camera_light(pattern.astype(np.float32) / 255, np.linalg.inv(mapping), camera)
+    assert np.abs(as_float.astype(int) - light).max() <= 1

@@ -28,7 +28,7 @@ from .detections import Detections
 from .errors import UsageError, check_output_path
 from .levels import HoleLevels
 from .outputs import LightOutput, open_output
-from .pattern import render_pattern, scale_mapping
+from .pattern import camera_light, render_pattern, scale_mapping
 from .probe import Intervals
 from .sources import FrameSource, open_source, parse_crop
 from .stats import RunningStats
@@ -360,17 +360,17 @@ class _Pipeline:
         self.exposure_buffer = (np.empty((height, width), np.uint8)  # pulse with probing or levels: the
                                 if (self.probe is not None or self.levels is not None)  # lifted pattern
                                 and self.pulse_level is not None else None)
-        # the light the next exposure gets, in camera pixels at half size (the detector's working scale)
         self.compensate = bool(light.compensate) and light.strategy != "flash" and config.run.mode == "single"
         # the detector's learning for the next frames (stages marked ``after``) runs once the
         # pattern is out: in single mode by emit, with threads by the process thread meanwhile
         # (a worker process runs its detector whole)
         self.defer = config.run.mode in ("single", "threads")
         self.learn_on_emit = config.run.mode == "single"
-        cw, ch = source.size
-        self.light_size = (max(cw // 2, 1), max(ch // 2, 1))
-        to_half = np.diag([self.light_size[0] / cw, self.light_size[1] / ch, 1.0])
-        self.camera_from_projector = to_half @ np.linalg.inv(self.mapping)
+        # the light the next exposure gets, in camera pixels (pattern.camera_light), into one buffer:
+        # the detector reads it in the next frame's detection, before the next one is made
+        self.camera_from_projector = np.linalg.inv(self.mapping)
+        self.camera_size = source.size
+        self.light_buffer = np.empty(source.size[::-1], np.uint8) if self.compensate else None
         self.columns = columns
         self.index_of = {c: i for i, c in enumerate(columns)}
         self.stage_columns = [f"{st.label} Duration (s)" for st in detector.stages]
@@ -546,9 +546,8 @@ class _Pipeline:
         if self.probe is not None:  # mode single: the buffer stays intact until the next frame is processed
             self.shown_exposure = exposed if self.light_on else None
         if self.compensate:  # what the next exposure will be lit by: this pattern on the scene
-            self.detector.set_light(None if not self.light_on else cv2.warpPerspective(
-                exposed, self.camera_from_projector, self.light_size, flags=cv2.INTER_LINEAR,
-                borderMode=cv2.BORDER_CONSTANT, borderValue=255))
+            self.detector.set_light(camera_light(exposed, self.camera_from_projector, self.camera_size,
+                                                 out=self.light_buffer) if self.light_on else None)
         self._record(rec.frame.image)
         latency_ns = shown_ns - rec.frame.timestamp_ns
         summary = self.summary

@@ -54,7 +54,7 @@ from .detection import make_detector
 from .detections import Detections
 from .errors import UsageError
 from .levels import LEVELS, HoleLevels
-from .pattern import render_pattern, scale_mapping
+from .pattern import camera_light, render_pattern, scale_mapping
 from .simulate import make_scene
 from .probe import MIN_WORTH, DepthProbe, Intervals
 from .tracking import Prediction
@@ -400,9 +400,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                 # the system knows the light it put on the scene during this exposure: its
                 # pattern, taken back to camera pixels on a plane at the far working distance
                 if run.mapping != "identity":  # as run: no compensation without a calibration
-                    detector.set_light(cv2.warpPerspective(shown, camera_from_far, geometry.camera_size,
-                                                           flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                                                           borderValue=1.0))
+                    detector.set_light(camera_light(shown, camera_from_far, geometry.camera_size))
                 if tracker is not None and run.strategy != "flash" and run.mapping != "identity":
                     # as run (with compensation): where tracked particles should be now
                     detector.expect(tracker.snapshot().holes(t0 + geometry.exposure_s / 2))

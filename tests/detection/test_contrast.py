@@ -506,6 +506,42 @@ def test_the_lamps_own_pattern_on_the_background_is_not_taken_for_particles():
     assert counts[False] > counts[True] + 10  # uninformed, the lit-again patch is "particles"
 
 
+def test_a_pattern_landing_a_pixel_off_its_light_map_leaves_no_particles_at_the_rims():
+    from antiscatter.detections import Detections
+    from antiscatter.pattern import camera_light, render_pattern, scale_mapping
+
+    rng = np.random.default_rng(5)
+    size, projector = (640, 480), (1024, 640)
+    ground = 70 + 110 * fractal_noise(size, rng, octaves=5, base=6)  # a bright, textured seabed
+    holes = Detections(rng.uniform([40, 40], [600, 440], (40, 2)), np.full(40, 7.0))
+    mapping = scale_mapping(size, projector)
+    pattern = render_pattern(holes, size=projector, mapping=mapping, hole=26)  # dim holes, 0.1
+    told = {"camera pixels": camera_light(pattern, np.linalg.inv(mapping), size),
+            # as run did before: at the working pixels' centres, half size
+            "half size": cv2.warpPerspective(pattern, np.diag([0.5, 0.5, 1.0]) @ np.linalg.inv(mapping),
+                                             (320, 240), flags=cv2.INTER_LINEAR, borderValue=255)}
+    # where the lamp really puts it: a camera pixel right of and below where the map says
+    off = np.array([[1.0, 0.0, 1.0], [0.0, 1.0, 1.0], [0.0, 0.0, 1.0]]) @ np.linalg.inv(mapping)
+    lamp = camera_light(pattern, off, size) / 255.0
+    particle = np.zeros(size[::-1])
+    cv2.circle(particle, (int(holes.centres[0, 0]) + 1, int(holes.centres[0, 1]) + 1), 3, 255, -1)
+    others = {}
+    for name, light in told.items():
+        detector = make_detector("contrast")
+        for i in range(20):  # the seabed under the full lamp first
+            detector.detect(np.clip(ground + rng.normal(0, 1.5, ground.shape), 0, 255).astype(np.uint8))
+        for i in range(4):
+            detector.set_light(light)
+            frame = np.maximum(ground, particle) * lamp + rng.normal(0, 1.5, ground.shape)
+            found = detector.detect(np.clip(frame, 0, 255).astype(np.uint8))
+            at_particle = np.hypot(*(found.centres - holes.centres[0] - 1).T) < 3
+            others.setdefault(name, []).append(int((~at_particle).sum()))
+            if name == "camera pixels":
+                assert at_particle.sum() == 1  # the particle, dimmed in its own hole, is still found
+    assert max(others["camera pixels"]) <= 2  # the rims are not particles
+    assert min(others["half size"]) > 20  # a rim sampled at half size is one for most holes
+
+
 def test_pixels_the_lamp_left_dark_keep_their_background():
     rng = np.random.default_rng(4)
     scene_bg = np.full((240, 320), 70.0)

@@ -67,7 +67,8 @@ class Detector:
     set_light: tell the detector the light the lamp gives the scene during the next frame's
         exposure -- an (H, W) map in camera pixels, 1 = full lamp (any size; None = full
         everywhere) -- so the pattern's own imprint on the background is not taken for
-        particles; detectors that cannot use it ignore it.
+        particles; detectors that cannot use it ignore it.  The map may be a buffer the caller
+        fills again for the frame after (``run`` does): read it in that frame's detection only.
     expect: where known particles should be in the next frame (Detections, camera pixels; for
         that frame only): a detector may accept fainter light there -- a tracked particle
         dimmed under its own hole -- than it would anywhere else.
