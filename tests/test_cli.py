@@ -342,15 +342,22 @@ def test_adaptive_levels_give_each_tracked_hole_the_light_its_particle_needs(tmp
     # projector.  These files do not see the light: each particle comes back as bright under its hole
     # as lit, far above what it needs, so once its track is confirmed (third sighting) its hole's
     # level halves each frame -- the most it may fall -- down to the least level, 0.02 (5)
-    adaptive = holes("--levels", "adaptive")
+    adaptive = holes("--levels", "adaptive", "--rest", "0")
     assert [int(p[267, 240 + 24 * k]) for k, p in enumerate(adaptive)][:7] == [51, 51, 26, 13, 6, 5, 5]
     assert [int(p[533, 960]) for p in adaptive[3:7]] == [51, 51, 26, 13]  # its own, from frame 3
+    # resting (the default): a confirmed track just found is left in the dark through the next
+    # exposure; found there all the same (these files), its particle had left its hole -- seen
+    # in full light, its level is the target over that flux (the least, 5) -- and it is looked
+    # at under its hole the frame after, then rests again
+    resting = holes("--levels", "adaptive")
+    assert [int(p[267, 240 + 24 * k]) for k, p in enumerate(resting)][:7] == [51, 51, 0, 5, 0, 5, 0]
+    assert [int(p[533, 960]) for p in resting[3:7]] == [51, 51, 0, 5]
     fixed = holes("--levels", "fixed")
     assert all(p[267, 240 + 24 * k] == 51 for k, p in enumerate(fixed))
     replay = holes()  # auto: adaptive only with the camera -- these files never saw the light
     assert all(p[267, 240 + 24 * k] == 51 for k, p in enumerate(replay))
-    seed = holes("--detector", "seed", "--levels", "adaptive")  # its scores are no flux: the dim level
-    assert all(p[267, 240 + 24 * k] == 51 for k, p in enumerate(seed))
+    seed = holes("--detector", "seed", "--levels", "adaptive", "--rest", "0")  # its scores are no flux
+    assert all(p[267, 240 + 24 * k] == 51 for k, p in enumerate(seed))  # the dim level
     bad = cli("run", str(frames), "--strategy", strategy, "--track", "--min-level", "2", "--output", "none")
     assert bad.code == 2 and "light.min_level: got 2.0, allowed a number 0..1" in bad.err
 
@@ -655,18 +662,26 @@ def test_the_vehicles_default_configuration_runs_on_a_live_source(tmp_path):
         least = round(config.light.min_level * 255)
         last = cv2.imread(str(tmp_path / "p" / "18.png"), cv2.IMREAD_UNCHANGED)
         # each hole at its own level: this camera's particles come back as bright under their holes
-        # as lit (it does not see the light), so once confirmed every hole is at the least level
-        assert last.min() == (0 if pulsed else least)
+        # as lit (it does not see the light), so once confirmed every hole is at the least level --
+        # or, without probing, resting fully dark every other frame (found all the same, each is
+        # looked at under its hole the frame after)
         if not pulsed:
+            holes = set(np.unique(last)) | set(np.unique(cv2.imread(str(tmp_path / "p" / "17.png"),
+                                                                    cv2.IMREAD_UNCHANGED)))
+            assert holes == ({least, 255} if probing else {0, least, 255})
             assert not list((tmp_path / "p").glob("flash-*.png"))  # dim: the pattern alone
             continue
+        assert last.min() == 0
         # each capture under the last pattern with its holes lifted to their levels; probing, under
         # the probes' halves of the intervals that the pattern keeps dark between exposures
         pulse = cv2.imread(str(tmp_path / "p" / "flash-19.png"), cv2.IMREAD_UNCHANGED)
-        assert set(np.unique(pulse)) == {least, 255}
+        pulses = [cv2.imread(str(tmp_path / "p" / f"flash-{k}.png"), cv2.IMREAD_UNCHANGED) for k in (18, 19)]
+        assert set(np.unique(pulse)) == {least, 255} if probing else (
+            set(np.unique(pulses[0])) | set(np.unique(pulses[1])) == {0, least, 255})
         if probing:
             # (the holes are discs bigger than the intervals here: each half's disc sits at the half's
             # middle, a few pixels from the whole interval's)
             assert (last[pulse == least] == 0).mean() > 0.8 and (pulse == least).sum() <= (last == 0).sum()
-        else:
-            assert np.array_equal(pulse, np.maximum(last, least))
+        else:  # lifted to each hole's level; a resting hole stays dark
+            assert np.array_equal(pulse[pulse != 0], np.maximum(last, least)[pulse != 0])
+            assert (last[pulse == 0] == 0).all()

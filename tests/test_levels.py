@@ -96,3 +96,49 @@ def test_ids_the_tracker_no_longer_holds_touch_no_other_track():
     levels.update(found, ids, dimmed=np.array([1, 999]), alive=np.array([1, 2]), confirmed=np.array([1, 2, 998]))
     assert levels.of(np.array([1, 2])) == pytest.approx([0.05, 0.1])  # 2: not under a hole, not missed
     assert levels.least.tolist() == [0.0, 0.0]
+
+
+def test_a_confirmed_track_just_found_rests_in_the_dark_through_the_next_exposure():
+    levels = HoleLevels(0.1, floor=0.02, target=40.0, rest=1)
+    alive = dict(alive=np.array([4, 9]), confirmed=np.array([4]))  # 9 is tentative: it never rests
+    found, ids = seen([2000.0, 2000.0], [4, 9])  # both seen lit in full
+    levels.update(found, ids, dimmed=None, **alive)
+    assert list(levels.resting) == [4]
+    assert levels.of(np.array([4, 9, -1])) == pytest.approx([0.0, 0.1, 0.1])  # 4's hole dark
+    # not found in the dark of its hole: expected -- no more light for it, no less either
+    nothing = Detections.empty(), np.empty(0, np.int64)
+    levels.update(*nothing, dimmed=np.array([4, 9]), rested=np.array([4]), **alive)
+    assert len(levels.resting) == 0
+    assert levels.of(np.array([4])) == pytest.approx([0.02])  # target / flux = 0.02, as before
+    assert levels.least[0] == 0.0  # a miss in the dark of a resting hole is no ratchet
+    # dimmed and found again: it rests again
+    found, ids = seen([40.0], [4])
+    levels.update(found, ids, dimmed=np.array([4, 9]), **alive)
+    assert list(levels.resting) == [4] and levels.of(np.array([4])) == pytest.approx([0.0])
+    # found although its hole was dark: the hole missed it -- seen lit in full, it is looked at next
+    found, ids = seen([800.0], [4])
+    levels.update(found, ids, dimmed=np.array([4, 9]), rested=np.array([4]), **alive)
+    assert len(levels.resting) == 0 and levels.of(np.array([4])) == pytest.approx([0.05])  # 40 / 800
+    # dimmed and missed: twice the light, and no rest until it is found
+    levels.update(*nothing, dimmed=np.array([4, 9]), **alive)
+    assert len(levels.resting) == 0 and levels.of(np.array([4])) == pytest.approx([0.1])
+
+
+def test_rest_counts_frames_and_zero_never_rests():
+    found, ids = seen([40.0], [1])
+    nothing = Detections.empty(), np.empty(0, np.int64)
+    kept = HoleLevels(0.1, rest=0)
+    kept.update(found, ids, dimmed=np.array([1]), alive=np.array([1]), confirmed=np.array([1]))
+    assert len(kept.resting) == 0 and kept.of(np.array([1]))[0] > 0
+    two = HoleLevels(0.1, rest=2)
+    two.update(found, ids, dimmed=np.array([1]), alive=np.array([1]), confirmed=np.array([1]))
+    assert list(two.resting) == [1]
+    two.update(*nothing, dimmed=np.array([1]), rested=np.array([1]), alive=np.array([1]), confirmed=np.array([1]))
+    assert list(two.resting) == [1]  # the second frame of its rest
+    two.update(*nothing, dimmed=np.array([1]), rested=np.array([1]), alive=np.array([1]), confirmed=np.array([1]))
+    assert len(two.resting) == 0  # looked at next
+    two.update(*nothing, dimmed=None, alive=np.empty(0, np.int64), confirmed=np.empty(0, np.int64))
+    assert len(two.resting) == 0 and len(two.ids) == 0
+    for bad in (-1, 1.5, "1"):
+        with pytest.raises(ValueError, match="rest: got"):
+            HoleLevels(0.1, rest=bad)

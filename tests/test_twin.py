@@ -170,6 +170,10 @@ def test_twin_command_json(cli):
     # depth probing draws only the holes worth their light, and every hole beside it for comparison
     assert sorted(r["min_worth"] for r in runs if r["mapping"] == "probe") == [0.0] + [MIN_WORTH] * 4
     assert all(r["min_worth"] is None for r in runs if r["mapping"] != "probe")
+    # adaptive holes rest after each sighting, as run's; probing never does
+    assert {r["rest"] for r in runs if r["levels"] == "adaptive" and r["mapping"] != "probe"} == {1}
+    assert all(r["rest"] == 0 for r in runs if r["levels"] == "adaptive" and r["mapping"] == "probe")
+    assert all(r["rest"] is None for r in runs if r["levels"] != "adaptive")
     assert all(r["latency_ms"] == 7 and 0 <= r["backscatter_removed"] <= 1 and 0 <= r["scene_light_kept"] <= 1
                for r in runs)
     bad = cli("twin", "--preset", "seed")
@@ -179,6 +183,8 @@ def test_twin_command_json(cli):
     # the views do not overlap: every figure would be 0 / 0 (it printed 0.000 for all, full light included)
     bad = cli("twin", "--min-worth", "-1")
     assert bad.code == 2 and "--min-worth -1.0: allowed a number >= 0" in bad.err
+    bad = cli("twin", "--rest", "-1")
+    assert bad.code == 2 and "--rest -1: allowed a whole number of frames >= 0" in bad.err
     bad = cli("twin", "--latency-ms", "nan")  # a traceback before
     assert bad.code == 2 and "--latency-ms nan: allowed a number >= 0" in bad.err
     bad = cli("twin", "--baseline-m", "inf")
@@ -291,7 +297,7 @@ def test_adaptive_holes_leave_a_bright_particle_only_the_light_it_needs_to_stay_
     # tracked (prediction on), the 4 mm bubble 0.6 m away comes back far brighter than the detector
     # needs even at a tenth of the lamp: its hole is turned down to the least level and it stays
     # found every frame (its track never misses)
-    runs = {levels: loop(strategy, dim_level=0.2, predict=True, levels=levels) for levels in ("fixed", "adaptive")}
+    runs = {levels: loop(strategy, dim_level=0.2, predict=True, levels=levels, rest=0) for levels in ("fixed", "adaptive")}
     fixed, adaptive = ([f["removed"] for f in runs[lv]["series"][12:]] for lv in ("fixed", "adaptive"))
     assert fixed == pytest.approx([1 - 0.2 * share] * 12, abs=1e-6)
     # at the least level (0.02, 5 grey levels) or a grey level or two above it when the flux came
@@ -300,3 +306,20 @@ def test_adaptive_holes_leave_a_bright_particle_only_the_light_it_needs_to_stay_
     assert max(adaptive) == pytest.approx(floor, abs=1e-6) and min(adaptive) >= 1 - 0.03 * share
     assert runs["adaptive"]["levels"] == "adaptive" and runs["fixed"]["levels"] == "fixed"
     assert runs["adaptive"]["scene_light_kept"] == pytest.approx(runs["fixed"]["scene_light_kept"], abs=0.01)
+
+
+@pytest.mark.parametrize("strategy", ["dim", "pulse"])
+def test_a_found_particle_rests_in_the_dark_every_other_exposure(strategy):
+    # the same bubble, its track confirmed: found under its hole, its hole is left dark through
+    # the next exposure (it is not found there, and is not lost), then it is looked at again
+    rested, looked = (loop(strategy, dim_level=0.2, predict=True, rest=r) for r in (1, 0))
+    series = [f["removed"] for f in rested["series"][12:]]
+    floor = round(0.02 * 255) / 255
+    if strategy == "pulse":  # the exposure's refresh dark and at the least level by turns
+        assert series[::2] == pytest.approx([series[0]] * 6, abs=1e-6)
+        assert sorted([series[0], series[1]]) == pytest.approx([1 - floor / 2, 1.0], abs=1e-6)
+    else:  # a dim hole is on for the whole frame: each frame holds a dark refresh and a dimmed one
+        assert series == pytest.approx([1 - floor / 2] * 12, abs=1e-6)
+    assert [f["removed"] for f in looked["series"][12:]] == pytest.approx([1 - floor * (0.5 if strategy == "pulse"
+                                                                                         else 1)] * 12, abs=1e-6)
+    assert rested["rest"] == 1 and looked["rest"] == 0

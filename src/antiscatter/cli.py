@@ -32,7 +32,7 @@ def _detector_help() -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .levels import LEVELS
+    from .levels import LEVELS, REST
     from .probe import MIN_WORTH
 
     parser = _Parser(
@@ -100,6 +100,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "the light the detector needs to see it, between --min-level and --dim-level; fixed: "
                         "--dim-level for every hole")
     g.add_argument("--min-level", type=float, help="the least light an adaptive hole leaves, 0..1 (default 0.02)")
+    g.add_argument("--rest", type=int, help="adaptive levels: frames a confirmed track's hole stays fully dark "
+                   "after each frame that found its particle, carried along its predicted path (default 1; "
+                   "0 = always dimmed; not while probing depth)")
     g.add_argument("--min-worth", type=float, help="depth probing: draw a hole only where the share of the "
                    "backscatter it withholds is at least this many times the share of the scene light it takes "
                    f"(default {MIN_WORTH:g}; 0 = every hole)")
@@ -281,6 +284,9 @@ def build_parser() -> argparse.ArgumentParser:
     tw.add_argument("--min-worth", type=float, default=MIN_WORTH, help="depth probing: a hole is drawn only where "
                     "the share of the backscatter it withholds is at least this many times the share of the scene "
                     f"light it takes (default {MIN_WORTH:g}, as run; one probing run always draws every hole)")
+    tw.add_argument("--rest", type=int, default=REST, help="adaptive levels: frames a confirmed track's hole stays "
+                    f"fully dark after each frame that found its particle (default {REST}, as run; 0 = always "
+                    "dimmed; not while probing)")
     tw.add_argument("--projector-size", default="1280x800", metavar="WxH", help="projector size (default 1280x800)")
     tw.add_argument("--plot", metavar="FILE.png", help="also draw backscatter removed and scene light kept "
                     "against latency, against baseline and against particle speed (a current across the view)")
@@ -682,6 +688,8 @@ def _twin(args: argparse.Namespace) -> int:
             raise UsageError(f"--{key.replace('_', '-')} {getattr(args, key)}: allowed 0..1")
     if not (math.isfinite(args.min_worth) and args.min_worth >= 0):
         raise UsageError(f"--min-worth {args.min_worth}: allowed a number >= 0 (0 = every hole drawn)")
+    if args.rest < 0:
+        raise UsageError(f"--rest {args.rest}: allowed a whole number of frames >= 0")
     try:
         size = parse_size(args.size, key="--size")
         check_frame_size(*size, what="--size: camera frames")
@@ -708,7 +716,7 @@ def _twin(args: argparse.Namespace) -> int:
                   "projector px")
     runs = []
     for run in default_runs(args.baseline_m):
-        run = dataclasses.replace(run, flash_level=args.flash_level, dim_level=args.dim_level,
+        run = dataclasses.replace(run, flash_level=args.flash_level, dim_level=args.dim_level, rest=args.rest,
                                   min_worth=args.min_worth if run.min_worth else 0.0)
         result = simulate_loop(run, geometry=geometry, preset=args.preset, frames=args.frames, seed=args.seed,
                                latency_ms=args.latency_ms, calibration=calibration)
@@ -818,7 +826,7 @@ def _run_config(args: argparse.Namespace):
         "track": {"enabled": args.track, "predict": args.predict, "latency_ms": args.latency_ms},
         "light": {"strategy": args.strategy, "dim_level": args.dim_level, "flash_level": args.flash_level,
                   "depth": args.depth, "levels": args.levels, "min_level": args.min_level,
-                  "min_worth": args.min_worth},
+                  "rest": args.rest, "min_worth": args.min_worth},
         "output": {"outputs": tuple(args.output) if args.output else None},
         "run": {"frames": args.frames, "fps": args.fps, "nice": args.nice,
                 "metrics": args.metrics, "detections": args.detections, "mode": args.mode,

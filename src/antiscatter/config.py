@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from .errors import UsageError
-from .levels import LEVELS, MIN_LEVEL
+from .levels import LEVELS, MIN_LEVEL, REST
 from .probe import MIN_WORTH
 
 __all__ = ["SourceConfig", "DetectorConfig", "PatternConfig", "OutputConfig", "RunConfig", "TrackConfig",
@@ -245,6 +245,10 @@ class LightConfig:
         faintest need -- or ``fixed``: ``dim_level`` for every hole.  Detectors whose scores are
         not a flux (``seed``) keep ``dim_level``.
     min_level: the least light an adaptive hole leaves its particle, 0..1 (capped at ``dim_level``).
+    rest: adaptive levels: frames a confirmed track's hole is left fully dark after each frame that
+        found its particle, the tracker carrying it along its predicted path, before it is dimmed
+        and looked at again (default 1; 0 = always dimmed; not while probing depth; see
+        :mod:`antiscatter.levels`).
     min_worth: probe: draw a hole only where the share of the frame's backscatter it withholds is
         at least this many times the share of the projector's field it darkens (0 = every hole;
         see :attr:`antiscatter.probe.DepthProbe.min_worth`).
@@ -259,6 +263,7 @@ class LightConfig:
     far_m: float = 3.0
     levels: str = "auto"
     min_level: float = MIN_LEVEL
+    rest: int = REST
     min_worth: float = MIN_WORTH
 
     def __post_init__(self) -> None:
@@ -274,6 +279,8 @@ class LightConfig:
             value = getattr(self, key)
             if not (math.isfinite(value) and 0 <= value <= 1):
                 raise ValueError(f"{key}: got {value}, allowed a number 0..1")
+        if isinstance(self.rest, bool) or not isinstance(self.rest, int) or self.rest < 0:
+            raise ValueError(f"rest: got {self.rest!r}, allowed a whole number of frames >= 0")
         if not (math.isfinite(self.min_worth) and self.min_worth >= 0):
             raise ValueError(f"min_worth: got {self.min_worth}, allowed a number >= 0 (0 = every hole drawn)")
 

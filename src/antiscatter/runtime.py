@@ -289,6 +289,7 @@ class _Record:
     hole_ids: Any = None  # the track ids of this pattern's holes
     intervals: Mapping | None = None  # depth probing with pulse: each track's whole remaining interval
     exposure: Any = None  # pulse with probing: the pattern for the next exposure (probe halves lifted)
+    rested_ids: Any = None  # the track ids of this pattern's holes left fully dark (HoleLevels.rest)
     learned: threading.Event | None = None  # the detector's deferred stages are done (None: none pending)
 
 
@@ -327,6 +328,7 @@ class _Pipeline:
         self.shown_probes: Mapping = {}  # each track's interval in the pattern the next exposure sees
         self.shown_exposure: np.ndarray | None = None  # and that pattern (probing: verdicts are judged by it)
         self.unlit_ids: np.ndarray | None = None  # tracks whose holes the next exposure is taken under
+        self.rested_ids: np.ndarray | None = None  # of them, those whose holes are fully dark (levels' rest)
         self.last_capture: float | None = None  # seconds, the last frame's capture time
         self.frame_period: float | None = None  # seconds, running mean of the capture interval
         if config.light.depth == "probe":
@@ -350,7 +352,8 @@ class _Pipeline:
         self.pulse_level = round(light.dim_level * 255) if light.strategy == "pulse" else None
         self.exposing = self.flash_image is not None or self.pulse_level is not None
         # each hole's own light (dim, or pulse while the camera exposes): tracked, not probed
-        self.levels = (HoleLevels(light.dim_level, floor=min(light.min_level, light.dim_level))
+        self.levels = (HoleLevels(light.dim_level, floor=min(light.min_level, light.dim_level),
+                                  rest=light.rest if self.probe is None else 0)
                        if light.levels == "adaptive" and light.strategy in ("dim", "pulse")
                        and tracker is not None else None)
         self.full_image = np.full((height, width), 255, np.uint8)
@@ -435,7 +438,7 @@ class _Pipeline:
                     intervals = covers
             if self.levels is not None:  # how bright each came back under its own hole (or probe: its verdict)
                 self.levels.update(detections, track_ids, self.unlit_ids if self.probe is None else self.probe.dimmed,
-                                   tracks.ids, tracks.ids[tracks.confirmed])
+                                   tracks.ids, tracks.ids[tracks.confirmed], rested=self.rested_ids)
             track_ns = clock() - t_track
             t_processed = clock()
         return _Record(frame, t0, t1, detections, stage_ns, track_ns, track_ids, holes, t_processed, 0, probes,
@@ -475,6 +478,8 @@ class _Pipeline:
             rec.hole_ids = holes.track_ids
             draw = {"size": self.projector_size, "mapping": self.mapping, "margin": self.config.pattern.margin}
             grey = self.levels.grey(holes.track_ids) if self.levels is not None else None
+            if self.levels is not None and len(self.levels.resting):
+                rec.rested_ids = holes.track_ids[np.isin(holes.track_ids, self.levels.resting)]
             if grey is not None and self.pulse_level is not None:
                 # pulse: each hole at its own level while the camera looks; between exposures the same
                 # holes dark, wherever the lifted pattern is not full (40 us, not a second drawing's 460)
@@ -531,6 +536,7 @@ class _Pipeline:
             self.shown_probes = rec.probes if self.light_on else {}
         # single mode: the next exposure is taken under this pattern (not under a flash)
         self.unlit_ids = rec.hole_ids if self.light_on and self.flash_image is None else None
+        self.rested_ids = rec.rested_ids if self.unlit_ids is not None else None
         exposed = shown
         if self.exposing:
             # flash and pulse run in mode single: the next capture, and the restore after it, come

@@ -53,7 +53,7 @@ import numpy as np
 from .detection import make_detector
 from .detections import Detections
 from .errors import UsageError
-from .levels import LEVELS, HoleLevels
+from .levels import LEVELS, REST, HoleLevels
 from .pattern import camera_light, render_pattern, scale_mapping
 from .simulate import make_scene
 from .probe import MIN_WORTH, DepthProbe, Intervals
@@ -170,7 +170,8 @@ class TwinRun:
     with ``dim`` or ``pulse`` and a tracker each hole's light set for its own particle
     (``levels="adaptive"``, :class:`~antiscatter.levels.HoleLevels`; ``dim_level`` is then the most
     a hole gives; with depth probing, a track is taken to have had its level when its verdict
-    found it dimmed under its own probe or hole).
+    found it dimmed under its own probe or hole), and then, unless probing, a confirmed track's
+    hole left fully dark for ``rest`` frames after each frame that found its particle.
     """
 
     detector: str | None = "contrast"
@@ -183,6 +184,7 @@ class TwinRun:
     margin_px: float = 0.0
     levels: str = "adaptive"
     min_worth: float = MIN_WORTH
+    rest: int = REST
 
     def __post_init__(self) -> None:
         if self.levels not in LEVELS:
@@ -268,10 +270,11 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                               near_m=geometry.near_m, far_m=geometry.far_m, dim_level=run.dim_level,
                               projector_size=geometry.projector_size, min_worth=run.min_worth)
     probe = segments if run.mapping == "probe" else None
-    levels = (HoleLevels(run.dim_level) if run.levels == "adaptive" and run.strategy in ("dim", "pulse")
-              and tracker is not None else None)
+    levels = (HoleLevels(run.dim_level, rest=run.rest if probe is None else 0)  # probing reads no rest
+              if run.levels == "adaptive" and run.strategy in ("dim", "pulse") and tracker is not None else None)
     shown_probes: Mapping = {}  # the intervals the pattern on during the last exposure gave each track
     shown_ids = None  # the tracks whose holes were on during the last exposure
+    shown_rested = None  # of them, those left dark through it (HoleLevels.rest)
     pw, ph = geometry.projector_size
     if run.mapping == "identity":
         camera_mapping = scale_mapping(geometry.camera_size, geometry.projector_size)
@@ -324,7 +327,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                 probe.forget(tracks.ids)
             if levels is not None:  # how bright each came back under its own hole (or probe: its verdict)
                 levels.update(found, tracks.detection_ids, shown_ids if probe is None else probe.dimmed,
-                              tracks.ids, tracks.ids[tracks.confirmed])
+                              tracks.ids, tracks.ids[tracks.confirmed], rested=shown_rested)
             if probe is not None:
                 snapshot = tracker.snapshot()
                 probes, covers = probe.plan(snapshot.holes(t0))
@@ -360,6 +363,8 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                 shown_ids = (None if run.strategy == "flash" else
                              Intervals.of(displayed.probes).ids if isinstance(displayed, _Probing) else
                              displayed.ids if isinstance(displayed, (Prediction, _Fixed)) else None)
+                shown_rested = (levels.resting[np.isin(levels.resting, shown_ids)]
+                                if levels is not None and shown_ids is not None else None)
             pulsed = run.strategy == "pulse" and j == 0 and detector is not None  # the exposure's refresh
             if detector is None:
                 shown = full
@@ -428,6 +433,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
             "mapping": run.mapping if run.detector else "none", "predict": run.predict,
             "strategy": run.strategy if run.detector else "none", "dim_level": run.dim_level,
             "levels": ("adaptive" if levels is not None else "fixed") if run.strategy in ("dim", "pulse") else None,
+            "rest": levels.rest if levels is not None else None,
             "min_worth": run.min_worth if probe is not None else None,
             "latency_ms": latency_ms,
             "baseline_m": geometry.baseline_m, "backscatter_removed": removed,
