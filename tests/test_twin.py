@@ -8,7 +8,7 @@ import pytest
 
 from antiscatter.probe import MIN_WORTH
 from antiscatter.simulate.scene import KindConfig, RealisticScene, SceneConfig
-from antiscatter.twin import TwinGeometry, TwinRun, _mean_over_discs, simulate_loop
+from antiscatter.twin import TwinGeometry, TwinRun, _mean_over_discs, default_runs, simulate_loop
 
 SIZE = (400, 300)
 
@@ -264,8 +264,14 @@ def test_scoreboard_twin_table_has_every_run_at_both_baselines(monkeypatch):
     real = twin.simulate_loop
     monkeypatch.setattr(twin, "simulate_loop", lambda run, **kw: real(run, **{**kw, "geometry": TwinGeometry(
         camera_size=(160, 120), baseline_m=kw["geometry"].baseline_m)}))
-    rows = _twin_rows(2, lambda s: None, seeds=2)
+    rows = _twin_rows(2, lambda s: None, seeds=2, workers=2)  # the loops in two processes
     assert {r["baseline_m"] for r in rows} == {0.0, 0.12} and {r["latency_ms"] for r in rows} == {5.0, 10.0, 20.0}
+    # each row the mean of its own run's scenes, whatever process ran them
+    last = default_runs(0.12)[-1]
+    here = [twin.simulate_loop(last, geometry=TwinGeometry(baseline_m=0.12), frames=2, latency_ms=20.0, seed=seed)
+            for seed in (1, 2)]
+    assert rows[-1]["backscatter_removed"] == pytest.approx(np.mean([o["backscatter_removed"] for o in here]))
+    assert rows[-1]["scene_light_kept"] == pytest.approx(np.mean([o["scene_light_kept"] for o in here]))
     low, high = (float(v) for v in rows[-1]["removed_range"].split("-"))
     assert low <= rows[-1]["backscatter_removed"] <= high  # the mean of the two scenes lies in their range
     assert any(r["run"] == "full light" and r["backscatter_removed"] == 0 for r in rows)

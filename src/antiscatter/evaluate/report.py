@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import datetime as _dt
 import math
+import os
 from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable
@@ -231,25 +232,49 @@ def _tracking_rows(scenarios: dict[str, Any], matching: Any, frames_limit: int |
     return rows
 
 
-def _twin_rows(frames: int, log: Callable[[str], None], *, seeds: int = 3) -> list[dict[str, Any]]:
-    from ..twin import TwinGeometry, default_runs, simulate_loop
+def _twin_rows(frames: int, log: Callable[[str], None], *, seeds: int = 3,
+               workers: int | None = None) -> list[dict[str, Any]]:
+    """The twin table's rows: every default run at both baselines and three latencies, each the mean
+    over ``seeds`` scenes, the loops spread over ``workers`` processes (default: one per CPU this
+    process may use; the loops are independent, and one at a time took most of an hour)."""
+    from ..twin import default_runs
 
     keys = ("backscatter_removed", "scene_light_kept", "backscatter_removed_steady", "scene_light_kept_steady")
+    jobs = [(run, baseline, latency, seed, frames)
+            for baseline in (0.0, 0.12) for latency in (5.0, 10.0, 20.0)
+            for run in default_runs(baseline) for seed in range(1, seeds + 1)]
+    if workers is None:
+        workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    log(f"twin: {len(jobs)} loops of {frames} frames on {workers} process(es)")
+    if workers > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(workers) as pool:
+            outs = list(pool.map(_twin_job, jobs))
+    else:
+        outs = [_twin_job(job) for job in jobs]
     rows = []
-    for baseline in (0.0, 0.12):
-        for latency in (5.0, 10.0, 20.0):
-            log(f"twin: baseline {baseline} m, latency {latency} ms")
-            for run in default_runs(baseline):
-                outs = [simulate_loop(run, geometry=TwinGeometry(baseline_m=baseline), frames=frames,
-                                      latency_ms=latency, seed=seed) for seed in range(1, seeds + 1)]
-                out = outs[0]
-                name = ("full light" if run.detector is None else
-                        f"{out['detector']}, {out['mapping']}, {out['strategy']}"
-                        + (", predict" if out["predict"] else "")
-                        + (", fixed levels" if run.levels == "fixed" else "")
-                        + (", every hole" if out.get("min_worth") == 0 else ""))
-                removed = [o["backscatter_removed"] for o in outs]
-                rows.append({"baseline_m": baseline, "latency_ms": latency, "run": name,
-                             **{key: float(np.mean([o[key] for o in outs])) for key in keys},
-                             "removed_range": f"{min(removed):.3f}-{max(removed):.3f}"})
+    for at in range(0, len(jobs), seeds):
+        run, baseline, latency = jobs[at][:3]
+        group = outs[at:at + seeds]
+        out = group[0]
+        name = ("full light" if run.detector is None else
+                f"{out['detector']}, {out['mapping']}, {out['strategy']}"
+                + (", predict" if out["predict"] else "")
+                + (", fixed levels" if run.levels == "fixed" else "")
+                + (", every hole" if out.get("min_worth") == 0 else ""))
+        removed = [o["backscatter_removed"] for o in group]
+        rows.append({"baseline_m": baseline, "latency_ms": latency, "run": name,
+                     **{key: float(np.mean([o[key] for o in group])) for key in keys},
+                     "removed_range": f"{min(removed):.3f}-{max(removed):.3f}"})
     return rows
+
+
+def _twin_job(job: tuple) -> dict[str, Any]:
+    """One closed loop of the twin table (a process of its own), without its per-frame series."""
+    from ..twin import TwinGeometry, simulate_loop
+
+    run, baseline, latency, seed, frames = job
+    out = simulate_loop(run, geometry=TwinGeometry(baseline_m=baseline), frames=frames, latency_ms=latency, seed=seed)
+    out.pop("series")
+    return out
