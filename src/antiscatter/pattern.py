@@ -112,7 +112,7 @@ def camera_light(pattern: np.ndarray, camera_from_projector: np.ndarray, camera_
     pools the frame: a map at its half-size working grid, sampled at the pixels' centres, put
     each hole's rim where no pooled frame has it (in the twin, co-located, pulsed holes on the
     textured seabed, 0.682 of the backscatter removed and 0.816 of the scene light kept against
-    0.901 / 0.972).  Nearest projector pixel: the twin's figures within 0.008 of bilinear's
+    0.901 / 0.972 now, with the detector's slack of a pixel).  Nearest projector pixel: the twin's figures within 0.008 of bilinear's
     (scenes 1-6, textured, mixed, 12 cm) at 0.4 of its time (400 against 930 us at 800x600 on
     the development VM).  ``out``: a (height, width) uint8 buffer to fill (reused between frames:
     a new full-resolution image each frame cost more in page faults than the warp on that VM).

@@ -1859,13 +1859,15 @@ def _upper_light(light: np.ndarray | None, shape: tuple[int, int], factor: int,
 
     A hole's rim a pixel off on a bright seabed is a crescent of light the map does not explain;
     each was taken for a particle, given a hole, and made rims of its own.  In the twin
-    (co-located, pulsed holes, prediction, 5 ms, scenes 1-6) with its calibration (from
-    ``calibrate --twin``) one camera pixel off in x and in y, removed / kept on the textured
-    seabed 0.732 / 0.785 without this slack, 0.854 / 0.946 with it; mixed 0.853 / 0.911 and
-    0.885 / 0.961.  With the calibration as recovered (0.07 projector px off) the slack costs
-    little: textured 0.906 / 0.967 -> 0.902 / 0.972, mixed 0.909 / 0.962 -> 0.910 / 0.964, at
-    12 cm with probing 0.812 / 0.929 -> 0.808 / 0.927 (the exact geometry).  Two pixels of
-    slack lost the particles dimmed in small holes (mixed 0.867 removed, textured 0.838).
+    (pulsed holes, prediction, 5 ms, scenes 1-6) with its calibration (from ``calibrate
+    --twin``) one camera pixel off in x and in y, removed / kept without this slack and with
+    it: co-located on the textured seabed 0.720 / 0.771 and 0.861 / 0.941, mixed 0.844 / 0.902
+    and 0.888 / 0.961, at 12 cm with probing 0.780 / 0.888 and 0.789 / 0.927.  With the
+    calibration as recovered (0.07 projector px off) 0.911 / 0.964 and 0.905 / 0.970, 0.916 /
+    0.961 and 0.915 / 0.963, 0.803 / 0.928 and 0.807 / 0.928.  Two pixels of slack lost the
+    particles dimmed in small holes (mixed 0.867 removed, textured 0.838).  Measuring the flux
+    against the map itself (only the decision against this) failed the probe's verdicts on a
+    bright bubble (its settled hole at the wrong depth: 0.7 removed where 0.8 is the dim level).
     Only the comparison uses it: the background is learnt under the map itself.  ``buffers``: a
     dict that keeps the dilated map's buffer between frames."""
     if light is None or np.shape(light)[:2] != (shape[0] * factor, shape[1] * factor):
