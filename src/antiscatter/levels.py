@@ -106,12 +106,13 @@ class HoleLevels:
         self.since = np.empty(0, np.int64)  # frames since each track's particle was last found
         self.resting = np.empty(0, np.int64)  # ids whose holes stay dark through the next exposure
 
-    def _lookup(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(level, least) of each of ``ids``; ``ceiling`` and 0 for ids not known."""
+    def _lookup(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(level, least, since) of each of ``ids``; ``ceiling``, 0 and 0 for ids not known."""
         if len(self.ids) == 0:
-            return np.full(len(ids), self.ceiling), np.zeros(len(ids))
+            return np.full(len(ids), self.ceiling), np.zeros(len(ids)), np.zeros(len(ids), np.int64)
         pos, known = rows_in(self.ids, ids)
-        return np.where(known, self.level[pos], self.ceiling), np.where(known, self.least[pos], 0.0)
+        return (np.where(known, self.level[pos], self.ceiling), np.where(known, self.least[pos], 0.0),
+                np.where(known, self.since[pos], 0))
 
     def update(self, found: Detections, detection_ids: np.ndarray, dimmed: np.ndarray | None,
                alive: np.ndarray, confirmed: np.ndarray, rested: np.ndarray | None = None) -> None:
@@ -125,8 +126,8 @@ class HoleLevels:
         being found is expected of them.
         """
         alive = np.sort(np.asarray(alive, np.int64))
-        level, least = self._lookup(alive)
-        since = self._since(alive) + 1
+        level, least, since = self._lookup(alive)
+        since += 1
         ids = np.asarray(detection_ids, np.int64)
         tracked = ids >= 0
         resting = np.empty(0, np.int64)
@@ -161,20 +162,23 @@ class HoleLevels:
                 resting = alive[~tentative & (since < self.rest) & ~(dark & (since == 0))]
         self.ids, self.level, self.least, self.since, self.resting = alive, level, least, since, resting
 
-    def _since(self, ids: np.ndarray) -> np.ndarray:
-        """Frames since each of ``ids`` (sorted) was last found; 0 for ids not known."""
-        if len(self.ids) == 0:
-            return np.zeros(len(ids), np.int64)
-        pos, known = rows_in(self.ids, ids)
-        return np.where(known, self.since[pos], 0)
-
     def of(self, track_ids: np.ndarray) -> np.ndarray:
         """Levels of the holes of ``track_ids`` (-1, an untracked hole: ``ceiling``; resting: 0)."""
         ids = np.asarray(track_ids, np.int64)
-        level, _ = self._lookup(ids)
+        level = self._lookup(ids)[0]
         if len(self.resting):
-            level = np.where(np.isin(ids, self.resting), 0.0, level)
+            level = np.where(self._resting(ids), 0.0, level)
         return np.where(ids >= 0, level, self.ceiling)
+
+    def _resting(self, ids: np.ndarray) -> np.ndarray:
+        """(N,) bool: which of ``ids`` are resting."""
+        return rows_in(self.resting, ids)[1]
+
+    def rested(self, hole_ids: np.ndarray) -> np.ndarray:
+        """Of a pattern's holes (their track ids), those drawn dark because they rest: what
+        :meth:`update` takes as ``rested`` once an exposure has been taken under that pattern."""
+        ids = np.asarray(hole_ids, np.int64)
+        return ids[self._resting(ids)]
 
     def grey(self, track_ids: np.ndarray) -> np.ndarray:
         """:meth:`of` as the projector's grey levels, 0..255."""

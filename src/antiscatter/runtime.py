@@ -478,8 +478,8 @@ class _Pipeline:
             rec.hole_ids = holes.track_ids
             draw = {"size": self.projector_size, "mapping": self.mapping, "margin": self.config.pattern.margin}
             grey = self.levels.grey(holes.track_ids) if self.levels is not None else None
-            if self.levels is not None and len(self.levels.resting):
-                rec.rested_ids = holes.track_ids[np.isin(holes.track_ids, self.levels.resting)]
+            if self.levels is not None:
+                rec.rested_ids = self.levels.rested(holes.track_ids)
             if grey is not None and self.pulse_level is not None:
                 # pulse: each hole at its own level while the camera looks; between exposures the same
                 # holes dark, wherever the lifted pattern is not full (40 us, not a second drawing's 460)

@@ -363,8 +363,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                 shown_ids = (None if run.strategy == "flash" else
                              Intervals.of(displayed.probes).ids if isinstance(displayed, _Probing) else
                              displayed.ids if isinstance(displayed, (Prediction, _Fixed)) else None)
-                shown_rested = (levels.resting[np.isin(levels.resting, shown_ids)]
-                                if levels is not None and shown_ids is not None else None)
+                shown_rested = levels.rested(shown_ids) if levels is not None and shown_ids is not None else None
             pulsed = run.strategy == "pulse" and j == 0 and detector is not None  # the exposure's refresh
             if detector is None:
                 shown = full

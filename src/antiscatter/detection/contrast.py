@@ -1850,8 +1850,8 @@ def _working_light(light: np.ndarray | None, shape: tuple[int, int], factor: int
     return cv2.max(light, 1)
 
 
-def _upper_light(light: np.ndarray | None, shape: tuple[int, int], factor: int,
-                 point: float = 0.0, buffers: dict | None = None) -> np.ndarray | None:
+def _upper_light(light: np.ndarray | None, shape: tuple[int, int], factor: int, point: float,
+                 buffers: dict) -> np.ndarray | None:
     """The most light each working pixel may have had when the pattern landed up to a camera
     pixel off the map (calibration error, the lens, a background off the calibrated plane): a
     map of the frame's size dilated by one pixel, then pooled as the frame is.  None for a map
@@ -1869,17 +1869,15 @@ def _upper_light(light: np.ndarray | None, shape: tuple[int, int], factor: int,
     against the map itself (only the decision against this) failed the probe's verdicts on a
     bright bubble (its settled hole at the wrong depth: 0.7 removed where 0.8 is the dim level).
     Only the comparison uses it: the background is learnt under the map itself.  ``buffers``: a
-    dict that keeps the dilated map's buffer between frames."""
+    dict that keeps the dilated map's buffer between frames (the detector's state)."""
     if light is None or np.shape(light)[:2] != (shape[0] * factor, shape[1] * factor):
         return None
     light = np.asarray(light)
     if light.dtype != np.uint8:
         light = cv2.convertScaleAbs(light, alpha=255.0)
-    kept = None if buffers is None else buffers.get("dilated")
+    kept = buffers.get("dilated")
     if kept is None or kept.shape != light.shape:
-        kept = np.empty_like(light)
-        if buffers is not None:
-            buffers["dilated"] = kept
+        kept = buffers["dilated"] = np.empty_like(light)
     return _working_light(cv2.dilate(light, _K3, dst=kept), shape, factor, point)
 
 
