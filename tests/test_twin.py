@@ -329,3 +329,68 @@ def test_a_found_particle_rests_in_the_dark_every_other_exposure(strategy):
     assert [f["removed"] for f in looked["series"][12:]] == pytest.approx([1 - floor * (0.5 if strategy == "pulse"
                                                                                          else 1)] * 12, abs=1e-6)
     assert rested["rest"] == 1 and looked["rest"] == 0
+
+
+def test_projector_defocus_grows_away_from_its_focus():
+    pinhole = TwinGeometry()
+    assert pinhole.defocus_px(np.array([0.3, 3.0])).tolist() == [0.0, 0.0]
+    lens = TwinGeometry(projector_aperture_m=0.006)  # focused at the background, 3 m
+    # the cone from a 6 mm aperture through the point in focus at 3 m is 6 mm x |0.5 - 3| / 3 = 5 mm
+    # across at 0.5 m, which the projector (focal 1536 px) sees as 5 mm / 0.5 m = 0.01 rad = 15.4 px
+    np.testing.assert_allclose(lens.defocus_px(np.array([0.5, 3.0])), [0.5 * 1536 * 0.006 * (2 - 1 / 3), 0.0])
+    near = TwinGeometry(projector_aperture_m=0.006, projector_focus_m=0.5)
+    assert near.defocus_px(np.array([0.5]))[0] == 0 and near.defocus_px(np.array([3.0]))[0] > 0
+    with pytest.raises(ValueError, match="projector_aperture_m: got -1"):
+        TwinGeometry(projector_aperture_m=-1)
+
+
+def test_a_blurred_hole_lets_light_in_at_its_edge():
+    hole = np.ones((200, 300))
+    cv2.circle(hole, (150, 100), 12, 0.0, -1)
+    at = (np.array([150.0]), np.array([100.0]), np.array([5.0]))
+    assert _mean_over_discs(hole, *at)[0] == 0.0
+    assert _mean_over_discs(hole, *at, np.array([5.0]))[0] == 0.0  # 5 + 5 < 12: still all dark
+    leak = _mean_over_discs(hole, *at, np.array([15.0]))[0]
+    assert 0.2 < leak < 0.8  # blurred past the hole's edge: part of the lamp's light gets in
+    # a straight edge through the centre stays half lit however blurred (the blur is symmetric)
+    half = np.ones((200, 300))
+    half[:, 150:] = 0
+    for blur in (0.0, 4.0, 20.0):
+        assert _mean_over_discs(half, np.array([149.5]), np.array([100.0]), np.array([3.0]),
+                                np.array([blur]))[0] == pytest.approx(0.5, abs=0.07)
+    from antiscatter.twin import _disc_kernel
+
+    assert _disc_kernel(0.3) is None
+    kernel = _disc_kernel(4.0)
+    assert kernel.shape == (9, 9) and kernel.sum() == pytest.approx(1.0) and kernel[0, 0] == 0
+
+
+@pytest.mark.parametrize("aperture_m, focus_m, leaks", [(0.03, 0.0, True), (0.03, 0.6, False)])
+def test_a_defocused_projector_leaks_light_into_holes_and_focusing_on_the_particle_stops_it(
+        aperture_m, focus_m, leaks):
+    # the dim holes of test_dim_holes_keep_the_particle_found (0.8 removed, exactly, with a pinhole
+    # projector); the particle is 0.6 m away: a 30 mm aperture focused at 3 m blurs its hole by
+    # 31 projector px, more than the hole's 12 px margin -- focused at 0.6 m, not at all
+    out = simulate_loop(TwinRun("contrast", "calibrated", "dim", dim_level=0.2, margin_px=12.0),
+                        geometry=TwinGeometry(camera_size=SIZE, baseline_m=0.0, projector_aperture_m=aperture_m,
+                                              projector_focus_m=focus_m),
+                        frames=24, latency_ms=5, scene=one_static_particle())
+    steady = [f["removed"] for f in out["series"][6:]]
+    if leaks:
+        assert max(steady) < 0.8 - 0.1
+    else:
+        np.testing.assert_allclose(steady, 0.8, atol=1e-6)
+    assert out["scene_light_kept"] > 0.95  # the blur moves the light, it does not take it away
+
+
+def test_twin_command_projector_lens(cli):
+    result = cli("twin", "--frames", "3", "--size", "200x150", "--preset", "bubbles", "--json",
+                 "--projector-aperture-mm", "6", "--projector-focus-m", "0.5")
+    assert result.code == 0, result.err
+    out = json.loads(result.out)
+    assert out["projector_aperture_mm"] == 6 and out["projector_focus_m"] == 0.5
+    plain = json.loads(cli("twin", "--frames", "3", "--size", "200x150", "--preset", "bubbles", "--json").out)
+    assert plain["projector_aperture_mm"] == 0 and plain["projector_focus_m"] == 3.0  # the background's
+    for flag in ("--projector-aperture-mm", "--projector-focus-m"):
+        bad = cli("twin", flag, "-2")
+        assert bad.code == 2 and f"{flag} -2.0: allowed a number >= 0" in bad.err and "Traceback" not in bad.err

@@ -288,6 +288,11 @@ def build_parser() -> argparse.ArgumentParser:
                     f"fully dark after each frame that found its particle (default {REST}, as run; 0 = always "
                     "dimmed; not while probing)")
     tw.add_argument("--projector-size", default="1280x800", metavar="WxH", help="projector size (default 1280x800)")
+    tw.add_argument("--projector-aperture-mm", type=float, default=0.0, help="projector lens aperture diameter, mm "
+                    "(default 0: a pinhole projector, sharp at every depth; an ML550-class lens, about 12 mm at "
+                    "f/2, is about 6): the pattern is sharp only at --projector-focus-m and blurred elsewhere")
+    tw.add_argument("--projector-focus-m", type=float, default=0.0, help="distance the projector is focused at, m "
+                    "(default 0: the background's, 3 m)")
     tw.add_argument("--plot", metavar="FILE.png", help="also draw backscatter removed and scene light kept "
                     "against latency, against baseline and against particle speed (a current across the view)")
     tw.add_argument("--calibration", metavar="FILE", help="use this calibration for the calibrated runs (default: "
@@ -690,6 +695,10 @@ def _twin(args: argparse.Namespace) -> int:
         raise UsageError(f"--min-worth {args.min_worth}: allowed a number >= 0 (0 = every hole drawn)")
     if args.rest < 0:
         raise UsageError(f"--rest {args.rest}: allowed a whole number of frames >= 0")
+    for key in ("projector_aperture_mm", "projector_focus_m"):
+        value = getattr(args, key)
+        if not (math.isfinite(value) and value >= 0):
+            raise UsageError(f"--{key.replace('_', '-')} {value}: allowed a number >= 0")
     try:
         size = parse_size(args.size, key="--size")
         check_frame_size(*size, what="--size: camera frames")
@@ -697,7 +706,9 @@ def _twin(args: argparse.Namespace) -> int:
         exposure = (args.exposure_ms / 1e3 if args.exposure_ms is not None
                     else min(0.004, 1.0 / args.projector_hz) if args.projector_hz > 0 else 0.004)
         geometry = TwinGeometry(camera_size=size, projector_size=projector, baseline_m=args.baseline_m,
-                                projector_hz=args.projector_hz, exposure_s=exposure)
+                                projector_hz=args.projector_hz, exposure_s=exposure,
+                                projector_aperture_m=args.projector_aperture_mm / 1e3,
+                                projector_focus_m=args.projector_focus_m)
     except ValueError as exc:
         raise UsageError(f"twin: {exc}") from None
     calibration = None
@@ -740,7 +751,9 @@ def _twin(args: argparse.Namespace) -> int:
             print(f"wrote {args.plot}")
     if args.json:
         print(json.dumps({"preset": args.preset, "frames": args.frames, "baseline_m": args.baseline_m,
-                          "latency_ms": args.latency_ms, **extra, "runs": runs}, indent=2))
+                          "latency_ms": args.latency_ms, "projector_aperture_mm": args.projector_aperture_mm,
+                          "projector_focus_m": args.projector_focus_m or geometry.background_m,
+                          **extra, "runs": runs}, indent=2))
     return 0
 
 

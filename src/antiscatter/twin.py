@@ -102,6 +102,12 @@ class TwinGeometry:
     scaled to ``camera_size``) behind a 6 mm lens, about 63 degrees across;
     an Optoma ML550-class projector, 1280x800, throw ratio 1.2, refreshing at
     120 Hz; the camera at 60 Hz with a 4 ms exposure; the background plane at 3 m.
+
+    projector_aperture_m: the projector lens's aperture diameter; 0 (default) is the pinhole
+    projector, sharp at every depth.  Above 0 the pattern is sharp only at ``projector_focus_m``
+    (0 = the background's distance): a particle at depth Z gets the pattern blurred by a disc of
+    radius :meth:`defocus_px` projector pixels (thin lens, geometric optics) -- the near
+    particles that send back most of the light get soft-edged holes.
     """
 
     camera_size: tuple[int, int] = (800, 600)
@@ -115,8 +121,14 @@ class TwinGeometry:
     background_m: float = 3.0
     near_m: float = 0.3
     far_m: float = 3.0
+    projector_aperture_m: float = 0.0
+    projector_focus_m: float = 0.0
 
     def __post_init__(self) -> None:
+        for key in ("projector_aperture_m", "projector_focus_m"):
+            value = getattr(self, key)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{key}: got {value}, allowed a number >= 0")
         if not (math.isfinite(self.baseline_m) and self.baseline_m >= 0):
             raise ValueError(f"baseline_m: got {self.baseline_m}, allowed a number >= 0")
         ratio = self.projector_hz / self.camera_hz
@@ -154,6 +166,16 @@ class TwinGeometry:
         s = fp / fc
         return np.array([[s, 0, pcx - s * ccx - fp * self.baseline_m / depth_m],
                          [0, s, pcy - s * ccy], [0, 0, 1.0]])
+
+    def defocus_px(self, Z: np.ndarray) -> np.ndarray:
+        """(N,) radius in projector pixels of the disc that blurs the pattern on points at depths
+        ``Z`` (metres): the cone of light from the aperture A through the point in focus at F, cut
+        at Z, is A |Z - F| / F across, which the projector sees as A |1/F - 1/Z| radians."""
+        Z = np.asarray(Z, np.float64)
+        if self.projector_aperture_m == 0:
+            return np.zeros(Z.shape)
+        focus = self.projector_focus_m or self.background_m
+        return 0.5 * self.projector_focal * self.projector_aperture_m * np.abs(1.0 / focus - 1.0 / Z)
 
     @property
     def working_depth_m(self) -> float:
@@ -202,16 +224,45 @@ _DISC = np.array([[math.sqrt((i + 0.5) / 32) * math.cos(i * 2.399963229728653),
                    math.sqrt((i + 0.5) / 32) * math.sin(i * 2.399963229728653)] for i in range(32)])
 
 
-def _mean_over_discs(light: np.ndarray, u: np.ndarray, v: np.ndarray, r: np.ndarray) -> np.ndarray:
+#: 8 points spread evenly over the unit disc: the blur disc's share of the sum of two discs
+_BLUR = np.array([[math.sqrt((i + 0.5) / 8) * math.cos(i * 2.399963229728653 + 1.0),
+                   math.sqrt((i + 0.5) / 8) * math.sin(i * 2.399963229728653 + 1.0)] for i in range(8)])
+
+
+def _mean_over_discs(light: np.ndarray, u: np.ndarray, v: np.ndarray, r: np.ndarray,
+                     blur: np.ndarray | None = None) -> np.ndarray:
     """Mean of ``light`` ((H, W) float) over each disc of radius r around (u, v), sampled at 32
-    points spread evenly over it (nearest pixel); points outside the projector's field get no light."""
+    points spread evenly over it (nearest pixel); points outside the projector's field get no light.
+
+    blur: (N,) radius of each disc's defocus (projector px; see TwinGeometry.defocus_px), or None:
+    the light the disc gets is then the pattern averaged over the disc blurred by a disc of that
+    radius -- each of the 32 points spread over 8 points of the blur disc (the sum of two discs)."""
     h, w = light.shape
     r = np.asarray(r, np.float64)
-    x = np.rint(np.asarray(u, np.float64)[:, None] + r[:, None] * _DISC[None, :, 0]).astype(np.int64)
-    y = np.rint(np.asarray(v, np.float64)[:, None] + r[:, None] * _DISC[None, :, 1]).astype(np.int64)
+    dx, dy = r[:, None] * _DISC[None, :, 0], r[:, None] * _DISC[None, :, 1]
+    if blur is not None and np.any(blur > 0):
+        b = np.asarray(blur, np.float64)[:, None, None]
+        dx = (dx[:, :, None] + b * _BLUR[None, None, :, 0]).reshape(len(r), -1)
+        dy = (dy[:, :, None] + b * _BLUR[None, None, :, 1]).reshape(len(r), -1)
+    x = np.rint(np.asarray(u, np.float64)[:, None] + dx).astype(np.int64)
+    y = np.rint(np.asarray(v, np.float64)[:, None] + dy).astype(np.int64)
     inside = (x >= 0) & (x < w) & (y >= 0) & (y < h)
     values = np.where(inside, light[np.clip(y, 0, h - 1), np.clip(x, 0, w - 1)], 0.0)
     return values.mean(axis=1) if len(values) else np.zeros(0)
+
+
+def _disc_kernel(radius: float) -> np.ndarray | None:
+    """A disc of ``radius`` pixels as a float32 kernel summing to 1, pixels weighted by how much of
+    each the disc covers (4 x 4 samples each); None below half a pixel (no blur to speak of)."""
+    if radius < 0.5:
+        return None
+    n = int(math.ceil(radius))
+    sub = (np.arange(4) + 0.5) / 4 - 0.5
+    y, x = np.mgrid[-n:n + 1, -n:n + 1].astype(np.float64)
+    yy = y[:, :, None, None] + sub[None, None, :, None]
+    xx = x[:, :, None, None] + sub[None, None, None, :]
+    kernel = (np.hypot(xx, yy) <= radius).mean(axis=(2, 3)).astype(np.float32)
+    return kernel / kernel.sum()
 
 
 def backscatter_weight(scene: Any, geometry: "TwinGeometry", particles: dict[str, np.ndarray]) -> np.ndarray:
@@ -302,6 +353,14 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
     lit_area = cv2.warpPerspective(full, inverse_bg, geometry.camera_size, flags=cv2.INTER_NEAREST,
                                    borderMode=cv2.BORDER_CONSTANT, borderValue=0.0) > 0.5
     lit_pixels = int(lit_area.sum())
+    # the pattern's defocus on the background, in camera pixels (a normalised disc; None: sharp)
+    background_blur = _disc_kernel(float(geometry.defocus_px(geometry.background_m))
+                                   * geometry.camera_focal / geometry.projector_focal)
+    # the full lamp's light on that view: the reference of the scene light kept (the view's size,
+    # less what a blurred edge of the field spills outside it)
+    lit_reference = float(lit_pixels if background_blur is None else
+                          cv2.filter2D(lit_area.astype(np.float32), -1, background_blur,
+                                       borderType=cv2.BORDER_CONSTANT)[lit_area].sum())
     if lit_pixels == 0:  # every figure would be 0 / 0
         raise UsageError(f"baseline {geometry.baseline_m:g} m: the projector lights none of the camera's view of "
                          f"the background {geometry.background_m:g} m away; allowed: a geometry whose views "
@@ -387,20 +446,25 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
             # frame period, so each refresh lights them where they are in its middle
             q = scene.particles(ahead_s=j * sub_s + sub_s / 2 - geometry.exposure_s / 2)
             su, sv = geometry.to_projector(q["X"], q["Y"], q["Z"])
-            particle_light = _mean_over_discs(shown, su, sv, np.maximum(rp, 0.5))
+            blur = geometry.defocus_px(q["Z"]) if geometry.projector_aperture_m else None
+            particle_light = _mean_over_discs(shown, su, sv, np.maximum(rp, 0.5), blur)
             frame_on += particle_light
-            frame_full += _mean_over_discs(full, su, sv, np.maximum(rp, 0.5))  # what the full lamp gives
+            frame_full += _mean_over_discs(full, su, sv, np.maximum(rp, 0.5), blur)  # what the full lamp gives
             # the background plane: the share of the camera's view that is lit
             bg = cv2.warpPerspective(shown, inverse_bg, geometry.camera_size, flags=cv2.INTER_NEAREST,
                                      borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
-            frame_scene += float(bg[lit_area].sum()) / lit_pixels
+            if background_blur is not None:  # the projector focused nearer or farther than the background
+                bg = cv2.filter2D(bg, -1, background_blur, borderType=cv2.BORDER_CONSTANT)
+            frame_scene += float(bg[lit_area].sum()) / lit_reference
             if j == 0 and detector is not None:
                 exposure_pattern = shown  # what the probe's verdicts are judged against
                 # the exposure sits at the start of the frame, inside the first refresh; its pattern
                 # may go on at a later refresh of this same frame
                 # the simulator's brightness is that of a 4 ms exposure: a shorter one gathers less
                 gather = geometry.exposure_s / REFERENCE_EXPOSURE_S
-                exposure_light = (gather * _mean_over_discs(shown, u, v, np.maximum(rp, 0.5)), gather * bg)
+                exposure_light = (gather * _mean_over_discs(shown, u, v, np.maximum(rp, 0.5),
+                                                            geometry.defocus_px(p["Z"]) if blur is not None else None),
+                                  gather * bg)
                 # the system knows the light it put on the scene during this exposure: its
                 # pattern, taken back to camera pixels on a plane at the far working distance
                 if run.mapping != "identity":  # as run: no compensation without a calibration
