@@ -217,6 +217,16 @@ def test_curves_plot(tmp_path):
     slow, fast = curves["speed_px_s"]
     assert fast > slow + 50
     assert cv2.imread(str(tmp_path / "t.png")).shape[1] > 1500  # three panels side by side
+    assert "by_focus" not in curves  # a pinhole projector has no focus
+
+
+def test_curves_plot_against_the_projector_focus(tmp_path):
+    from antiscatter.twin import plot_curves
+    geometry = TwinGeometry(camera_size=(200, 150), projector_aperture_m=0.006)
+    curves = plot_curves(str(tmp_path / "f.png"), geometry=geometry, preset="bubbles", frames=3,
+                         latencies_ms=(5.0,), baselines_m=(0.0,), currents_m_s=(0.0,), focuses_m=(0.5, 3.0))
+    assert curves["focus_m"] == [0.5, 3.0] and all(len(v) == 2 for v in curves["by_focus"].values())
+    assert cv2.imread(str(tmp_path / "f.png")).shape[1] > 2000  # a fourth panel
 
 
 def test_a_current_replaces_the_presets_and_carries_every_particle():

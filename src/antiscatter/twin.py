@@ -540,12 +540,15 @@ def plot_curves(path: str, *, geometry: TwinGeometry, preset: str = "mixed", fra
                 latencies_ms: tuple[float, ...] = (0.0, 5.0, 10.0, 20.0, 40.0),
                 baselines_m: tuple[float, ...] = (0.0, 0.03, 0.06, 0.12, 0.2),
                 currents_m_s: tuple[float, ...] = (0.0, 0.1, 0.2, 0.4, 0.8),
+                focuses_m: tuple[float, ...] = (0.3, 0.4, 0.5, 0.7, 1.0, 1.5, 3.0),
                 dim_level: float = 0.1, flash_level: float = 0.25) -> dict[str, Any]:
     """Backscatter removed and scene light kept against latency (at the geometry's baseline), against
     baseline (at 5 ms) and against particle speed (a water current across the view, m/s, replacing the
     preset's; at the geometry's baseline and 5 ms), for the default detector with the calibrated mapping
     (and depth probing) and, beside them, the report's ``seed`` detector with the identity mapping;
-    written as a PNG.  ``speed_px_s``: each current's median particle speed in the image."""
+    written as a PNG.  ``speed_px_s``: each current's median particle speed in the image.  With a
+    projector lens (``geometry.projector_aperture_m`` > 0) also against the distance it is focused at
+    (``by_focus``, at the geometry's baseline and 5 ms)."""
     from dataclasses import replace as _replace
 
     from .bench import _pyplot
@@ -564,6 +567,14 @@ def plot_curves(path: str, *, geometry: TwinGeometry, preset: str = "mixed", fra
     curves: dict[str, Any] = {"latency_ms": list(latencies_ms), "baseline_m": list(baselines_m),
                               "current_m_s": list(currents_m_s), "speed_px_s": speeds, "by_latency": {},
                               "by_baseline": {}, "by_speed": {}}
+    panels = [("by_latency", latencies_ms, "processing latency (ms)"),
+              ("by_baseline", baselines_m, "camera-projector baseline (m)"),
+              ("by_speed", currents_m_s, "current across the view (m/s) and the median particle speed in the "
+                                         "image (px/s)")]
+    if geometry.projector_aperture_m > 0:
+        curves["focus_m"], curves["by_focus"] = list(focuses_m), {}
+        panels.append(("by_focus", focuses_m, f"distance the projector is focused at (m; aperture "
+                                              f"{geometry.projector_aperture_m * 1e3:g} mm)"))
     for name, run in runs.items():
         curves["by_latency"][name] = [simulate_loop(run, geometry=geometry, preset=preset, frames=frames, seed=seed,
                                                     latency_ms=lat) for lat in latencies_ms]
@@ -571,12 +582,13 @@ def plot_curves(path: str, *, geometry: TwinGeometry, preset: str = "mixed", fra
                                                      frames=frames, seed=seed, latency_ms=5.0) for b in baselines_m]
         curves["by_speed"][name] = [simulate_loop(run, geometry=geometry, scene=drifting(c), frames=frames,
                                                   latency_ms=5.0) for c in currents_m_s]
+        if "by_focus" in curves:
+            curves["by_focus"][name] = [simulate_loop(run, geometry=_replace(geometry, projector_focus_m=f),
+                                                      preset=preset, frames=frames, seed=seed, latency_ms=5.0)
+                                        for f in focuses_m]
     plt = _pyplot()
-    fig, axes = plt.subplots(1, 3, figsize=(18, 4.5))
-    for ax, key, xs, label in ((axes[0], "by_latency", latencies_ms, "processing latency (ms)"),
-                               (axes[1], "by_baseline", baselines_m, "camera-projector baseline (m)"),
-                               (axes[2], "by_speed", currents_m_s, "current across the view (m/s) and the median "
-                                                                   "particle speed in the image (px/s)")):
+    fig, axes = plt.subplots(1, len(panels), figsize=(6 * len(panels), 4.5))
+    for ax, (key, xs, label) in zip(axes, panels):
         for name, results in curves[key].items():
             line, = ax.plot(xs, [r["backscatter_removed"] for r in results], "o-", label=f"{name}: removed")
             ax.plot(xs, [r["scene_light_kept"] for r in results], "s--", color=line.get_color(),
@@ -588,13 +600,17 @@ def plot_curves(path: str, *, geometry: TwinGeometry, preset: str = "mixed", fra
     axes[1].set_title("against baseline (latency 5 ms)")
     axes[2].set_title(f"against particle speed (baseline {geometry.baseline_m:g} m, latency 5 ms)")
     axes[2].set_xticks(list(currents_m_s), [f"{c:g}\n{s:.0f}" for c, s in zip(currents_m_s, speeds)])
+    if "by_focus" in curves:
+        axes[3].set_title(f"against projector focus (baseline {geometry.baseline_m:g} m, latency 5 ms)")
+        axes[3].set_xscale("log")
+        axes[3].set_xticks(list(focuses_m), [f"{f:g}" for f in focuses_m])
     handles, labels = axes[1].get_legend_handles_labels()
     fig.legend(handles, labels, loc="lower center", ncol=7, fontsize=7)
     fig.suptitle(f"antiscatter twin: {preset}, {frames} frames; default detector, calibrated mapping (seed: identity)")
     fig.tight_layout(rect=(0, 0.1, 1, 1))
     fig.savefig(path, dpi=100)
     plt.close(fig)
-    for key in ("by_latency", "by_baseline", "by_speed"):
+    for key, _, _ in panels:
         for results in curves[key].values():
             for r in results:
                 r.pop("series", None)
