@@ -288,6 +288,28 @@ def test_scoreboard_twin_table_has_every_run_at_both_baselines(monkeypatch):
     assert any(r["run"] == "default, range, flash, predict" for r in rows if r["baseline_m"] == 0.12)
 
 
+def test_scoreboard_lens_table(monkeypatch):
+    import dataclasses
+
+    import antiscatter.twin as twin
+    from antiscatter.evaluate.report import _lens_rows
+
+    real, seen = twin.simulate_loop, []
+
+    def small(run, **kw):
+        seen.append((kw["geometry"].baseline_m, kw["geometry"].projector_aperture_m, kw["geometry"].projector_focus_m))
+        return real(run, **{**kw, "geometry": dataclasses.replace(kw["geometry"], camera_size=(160, 120))})
+
+    monkeypatch.setattr(twin, "simulate_loop", small)
+    rows = _lens_rows(2, lambda s: None, seeds=1, workers=1)
+    assert [(r["baseline_m"], r["lens"]) for r in rows] == [
+        (b, lens) for b in (0.0, 0.12) for lens in ("pinhole", "6 mm, focused at 3 m", "6 mm, focused at 1 m",
+                                                    "6 mm, focused at 0.5 m")]
+    assert [r["run"] for r in rows[:4]] == ["default, calibrated, pulse, predict"] * 4
+    assert rows[-1]["run"] == "default, probe, pulse, predict"
+    assert seen[1] == (0.0, 0.006, 3.0) and seen[-1] == (0.12, 0.006, 0.5)  # each loop under its own lens
+
+
 def test_a_shorter_exposure_gathers_less_light_and_fast_projectors_run(cli, monkeypatch):
     gathered = {}
     for exposure, hz in ((0.004, 120.0), (0.001, 960.0)):

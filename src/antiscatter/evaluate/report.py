@@ -209,6 +209,20 @@ def scoreboard(*, scenarios: dict[str, Any], catalogue_version: int, detectors: 
                             ("scene_light_kept_steady", "kept, steady", "{:.3f}"),
                             ("removed_range", "removed, range", "")])
         data["twin"] = rows
+        md += ["", "### A projector with a lens", "",
+               "The same loops with the projector's pattern sharp only at the distance it is focused at "
+               f"(`twin --projector-aperture-mm 6 --projector-focus-m F`: a {LENS_APERTURE_MM:g} mm aperture, an "
+               "ML550-class lens, about 12 mm at f/2), 5 ms, pulsed holes with prediction; a particle at depth "
+               "Z gets its hole blurred by a disc 1536 px x A |1/F - 1/Z| across. The pinhole rows are "
+               "the table's above.", ""]
+        rows = _lens_rows(twin_frames, log, seeds=twin_seeds)
+        md += _table(rows, [("baseline_m", "baseline (m)", "{:g}"), ("run", "system", ""),
+                            ("lens", "projector", ""), ("backscatter_removed", "removed", "{:.3f}"),
+                            ("scene_light_kept", "kept", "{:.3f}"),
+                            ("backscatter_removed_steady", "removed, steady", "{:.3f}"),
+                            ("scene_light_kept_steady", "kept, steady", "{:.3f}"),
+                            ("removed_range", "removed, range", "")])
+        data["twin_lens"] = rows
     return "\n".join(md) + "\n", data
 
 
@@ -239,13 +253,48 @@ def _twin_rows(frames: int, log: Callable[[str], None], *, seeds: int = 3,
     process may use; the loops are independent, and one at a time took most of an hour)."""
     from ..twin import default_runs
 
-    keys = ("backscatter_removed", "scene_light_kept", "backscatter_removed_steady", "scene_light_kept_steady")
-    jobs = [(run, baseline, latency, seed, frames)
+    jobs = [(run, baseline, latency, seed, frames, 0.0, 0.0)
             for baseline in (0.0, 0.12) for latency in (5.0, 10.0, 20.0)
             for run in default_runs(baseline) for seed in range(1, seeds + 1)]
+    rows = []
+    for job, group in _twin_groups(jobs, seeds, log, workers):
+        run, baseline, latency = job[:3]
+        rows.append({"baseline_m": baseline, "latency_ms": latency, "run": _run_name(run, group[0]),
+                     **_group_figures(group)})
+    return rows
+
+
+#: the scoreboard's projector lens: aperture (mm) and the distances it is focused at (m)
+LENS_APERTURE_MM = 6.0
+LENS_FOCUS_M = (3.0, 1.0, 0.5)
+
+
+def _lens_rows(frames: int, log: Callable[[str], None], *, seeds: int = 3,
+               workers: int | None = None) -> list[dict[str, Any]]:
+    """The lens table's rows: co-located pulsed holes and, at 12 cm, pulsed depth probing, with
+    prediction at 5 ms, under a pinhole projector and one of ``LENS_APERTURE_MM`` focused at each
+    of ``LENS_FOCUS_M``."""
+    from ..twin import TwinRun
+
+    runs = ((0.0, TwinRun("contrast", "calibrated", "pulse", True)), (0.12, TwinRun("contrast", "probe", "pulse", True)))
+    lenses = [(0.0, 0.0)] + [(LENS_APERTURE_MM / 1e3, f) for f in LENS_FOCUS_M]
+    jobs = [(run, baseline, 5.0, seed, frames, aperture, focus)
+            for baseline, run in runs for aperture, focus in lenses for seed in range(1, seeds + 1)]
+    rows = []
+    for job, group in _twin_groups(jobs, seeds, log, workers):
+        run, baseline, _, _, _, aperture, focus = job
+        lens = f"{aperture * 1e3:g} mm, focused at {focus:g} m" if aperture else "pinhole"
+        rows.append({"baseline_m": baseline, "run": _run_name(run, group[0]), "lens": lens, **_group_figures(group)})
+    return rows
+
+
+def _twin_groups(jobs: list[tuple], seeds: int, log: Callable[[str], None], workers: int | None):
+    """Run the loops ``jobs`` (``_twin_job``'s tuples, each run's ``seeds`` scenes in a row) over
+    ``workers`` processes (default: one per CPU this process may use); yields (a run's first job,
+    its scenes' results)."""
     if workers is None:
         workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    log(f"twin: {len(jobs)} loops of {frames} frames on {workers} process(es)")
+    log(f"twin: {len(jobs)} loops of {jobs[0][4]} frames on {workers} process(es)")
     if workers > 1:
         from concurrent.futures import ProcessPoolExecutor
 
@@ -253,28 +302,34 @@ def _twin_rows(frames: int, log: Callable[[str], None], *, seeds: int = 3,
             outs = list(pool.map(_twin_job, jobs))
     else:
         outs = [_twin_job(job) for job in jobs]
-    rows = []
     for at in range(0, len(jobs), seeds):
-        run, baseline, latency = jobs[at][:3]
-        group = outs[at:at + seeds]
-        out = group[0]
-        name = ("full light" if run.detector is None else
-                f"{out['detector']}, {out['mapping']}, {out['strategy']}"
-                + (", predict" if out["predict"] else "")
-                + (", fixed levels" if run.levels == "fixed" else "")
-                + (", every hole" if out.get("min_worth") == 0 else ""))
-        removed = [o["backscatter_removed"] for o in group]
-        rows.append({"baseline_m": baseline, "latency_ms": latency, "run": name,
-                     **{key: float(np.mean([o[key] for o in group])) for key in keys},
-                     "removed_range": f"{min(removed):.3f}-{max(removed):.3f}"})
-    return rows
+        yield jobs[at], outs[at:at + seeds]
+
+
+def _run_name(run: Any, out: dict[str, Any]) -> str:
+    """A twin table's name for a run (its first scene's result ``out``)."""
+    return ("full light" if run.detector is None else
+            f"{out['detector']}, {out['mapping']}, {out['strategy']}"
+            + (", predict" if out["predict"] else "")
+            + (", fixed levels" if run.levels == "fixed" else "")
+            + (", every hole" if out.get("min_worth") == 0 else ""))
+
+
+def _group_figures(group: list[dict[str, Any]]) -> dict[str, Any]:
+    """The mean figures over one run's scenes, and the range of removed among them."""
+    keys = ("backscatter_removed", "scene_light_kept", "backscatter_removed_steady", "scene_light_kept_steady")
+    removed = [o["backscatter_removed"] for o in group]
+    return {**{key: float(np.mean([o[key] for o in group])) for key in keys},
+            "removed_range": f"{min(removed):.3f}-{max(removed):.3f}"}
 
 
 def _twin_job(job: tuple) -> dict[str, Any]:
-    """One closed loop of the twin table (a process of its own), without its per-frame series."""
+    """One closed loop of a twin table (a process of its own), without its per-frame series."""
     from ..twin import TwinGeometry, simulate_loop
 
-    run, baseline, latency, seed, frames = job
-    out = simulate_loop(run, geometry=TwinGeometry(baseline_m=baseline), frames=frames, latency_ms=latency, seed=seed)
+    run, baseline, latency, seed, frames, aperture, focus = job
+    out = simulate_loop(run, geometry=TwinGeometry(baseline_m=baseline, projector_aperture_m=aperture,
+                                                   projector_focus_m=focus),
+                        frames=frames, latency_ms=latency, seed=seed)
     out.pop("series")
     return out
