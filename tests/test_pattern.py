@@ -61,3 +61,17 @@ def test_camera_light_puts_each_hole_back_where_the_camera_sees_its_particle():
     assert camera_light(pattern, np.linalg.inv(mapping) @ np.diag([0.25, 0.25, 1.0]), camera)[400, 600] == 255
     as_float = camera_light(pattern.astype(np.float32) / 255, np.linalg.inv(mapping), camera)
     assert np.abs(as_float.astype(int) - light).max() <= 1
+
+
+def test_holes_grow_in_proportion_beyond_a_size():
+    from antiscatter.pattern import grow_holes
+
+    holes = Detections([[10, 10], [50, 50], [90, 90]], [2.0, 4.0, 10.0], track_ids=[7, 8, 9])
+    assert grow_holes(holes, grow=0.0, start=4.0, frame_width=800) is holes  # off
+    grown = grow_holes(holes, grow=0.5, start=4.0, frame_width=800)
+    np.testing.assert_allclose(grown.radii, [2.0, 4.0, 13.0])  # only the excess over 4 px grows
+    np.testing.assert_array_equal(grown.centres, holes.centres)
+    assert grown.track_ids.tolist() == [7, 8, 9]
+    # the threshold is for frames 800 px wide: at 1600 px the same particle is twice the pixels
+    np.testing.assert_allclose(grow_holes(holes, grow=0.5, start=4.0, frame_width=1600).radii, [2.0, 4.0, 11.0])
+    assert len(grow_holes(Detections.empty(), grow=1.0, start=0.0, frame_width=800)) == 0

@@ -302,10 +302,10 @@ def test_scoreboard_lens_table(monkeypatch):
 
     monkeypatch.setattr(twin, "simulate_loop", small)
     rows = _lens_rows(2, lambda s: None, seeds=1, workers=1)
-    assert [(r["baseline_m"], r["lens"]) for r in rows] == [
-        (b, lens) for b in (0.0, 0.12) for lens in ("pinhole", "6 mm, focused at 3 m", "6 mm, focused at 1 m",
-                                                    "6 mm, focused at 0.5 m")]
-    assert [r["run"] for r in rows[:4]] == ["default, calibrated, pulse, predict"] * 4
+    lenses = [("pinhole", 0.6), ("6 mm, focused at 3 m", 0), ("6 mm, focused at 1 m", 0),
+              ("6 mm, focused at 0.5 m", 0), ("6 mm, focused at 3 m", 0.6), ("6 mm, focused at 0.5 m", 0.6)]
+    assert [(r["baseline_m"], r["lens"], r["grow"]) for r in rows] == [(b, *lens) for b in (0.0, 0.12) for lens in lenses]
+    assert [r["run"] for r in rows[:6]] == ["default, calibrated, pulse, predict"] * 6
     assert rows[-1]["run"] == "default, probe, pulse, predict"
     assert seen[1] == (0.0, 0.006, 3.0) and seen[-1] == (0.12, 0.006, 0.5)  # each loop under its own lens
 
@@ -426,3 +426,23 @@ def test_twin_command_projector_lens(cli):
     for flag in ("--projector-aperture-mm", "--projector-focus-m"):
         bad = cli("twin", flag, "-2")
         assert bad.code == 2 and f"{flag} -2.0: allowed a number >= 0" in bad.err and "Traceback" not in bad.err
+
+
+def test_grown_holes_keep_a_blurred_hole_dark_and_the_run_says_so(cli):
+    # the defocused hole of test_a_defocused_projector_leaks_light_into_holes...: grown, it covers
+    # the particle's blurred light again (the 12 px margin gone, the growth alone must do it)
+    def steady(grow):
+        out = simulate_loop(TwinRun("contrast", "calibrated", "dim", dim_level=0.2, grow=grow, grow_from=0.0),
+                            geometry=TwinGeometry(camera_size=SIZE, baseline_m=0.0, projector_aperture_m=0.02),
+                            frames=24, latency_ms=5, scene=one_static_particle())
+        return float(np.mean([f["removed"] for f in out["series"][6:]])), out
+
+    leaky, out = steady(0.0)
+    tight, grown = steady(3.0)
+    assert leaky < 0.8 - 0.1 and tight == pytest.approx(0.8, abs=0.01)
+    assert out["grow"] == 0.0 and grown["grow"] == 3.0 and grown["grow_from"] == 0.0
+    result = cli("twin", "--frames", "3", "--size", "200x150", "--preset", "bubbles", "--json", "--grow", "0.6")
+    runs = json.loads(result.out)["runs"]
+    assert all(r["grow"] == 0.6 for r in runs if r["detector"]) and runs[0]["grow"] is None  # full light
+    bad = cli("twin", "--grow-from", "-1")
+    assert bad.code == 2 and "--grow-from -1.0: allowed a number >= 0" in bad.err

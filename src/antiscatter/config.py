@@ -107,6 +107,9 @@ class PatternConfig:
 
     width, height: projector resolution in pixels (Optoma ML550: 1280x800).
     margin: pixels added to every hole's radius.
+    grow, grow_from: each hole's radius beyond ``grow_from`` camera pixels (for frames 800 px
+        wide, in proportion for others) grows by ``grow`` times the excess
+        (:func:`~antiscatter.pattern.grow_holes`); grow 0 (default) = off.
     mapping: (3, 3) camera-to-projector homography as nested lists; empty =
         identity scaled from the camera size to the projector size.
     calibration: the calibration file the mapping came from (its depth model serves
@@ -116,6 +119,8 @@ class PatternConfig:
     width: int = 1280
     height: int = 800
     margin: float = 0.0
+    grow: float = 0.0
+    grow_from: float = 4.0
     mapping: tuple = ()
     calibration: str = ""
 
@@ -123,8 +128,10 @@ class PatternConfig:
         for name in ("width", "height"):  # the projector's pixels; three such buffers are kept
             if not 0 < getattr(self, name) <= MAX_PROJECTOR_SIDE:
                 raise ValueError(f"{name}: got {getattr(self, name)}, allowed 1..{MAX_PROJECTOR_SIDE}")
-        if not math.isfinite(self.margin) or self.margin < 0:
-            raise ValueError(f"margin: got {self.margin}, allowed a number >= 0")
+        for name in ("margin", "grow", "grow_from"):
+            value = getattr(self, name)
+            if not math.isfinite(value) or value < 0:
+                raise ValueError(f"{name}: got {value}, allowed a number >= 0")
         if self.mapping:
             matrix = _as_matrix(self.mapping)
             object.__setattr__(self, "mapping", tuple(tuple(row) for row in matrix.tolist()))

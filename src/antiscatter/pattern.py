@@ -7,7 +7,10 @@ import numpy as np
 
 from .detections import Detections
 
-__all__ = ["scale_mapping", "map_to_projector", "render_pattern", "blank_pattern", "camera_light"]
+__all__ = ["scale_mapping", "map_to_projector", "render_pattern", "blank_pattern", "camera_light", "grow_holes"]
+
+#: frame width (camera px) that ``grow_holes``'s ``start`` is given for
+GROW_REFERENCE_WIDTH = 800
 
 _SHIFT = 4  # sub-pixel bits for cv2.circle
 _ONE = 1 << _SHIFT
@@ -54,6 +57,27 @@ def blank_pattern(size: tuple[int, int], out: np.ndarray | None = None) -> np.nd
         out = np.empty((height, width), np.uint8)
     out.fill(255)
     return out
+
+
+def grow_holes(holes: Detections, *, grow: float, start: float, frame_width: int) -> Detections:
+    """Holes grown in proportion to their size: a radius r above ``start`` camera pixels (for a
+    frame ``GROW_REFERENCE_WIDTH`` wide, in proportion for others) becomes r + grow (r - start);
+    ``grow`` 0 leaves them as they are.
+
+    What takes a hole off its particle grows as 1/distance, as the particle's image does: a near
+    particle is fast across the view (the prediction's error), out of the projector's focus
+    (the hole's blurred rim) and large; the many small far ones keep their holes and the scene
+    its light.  In the twin (co-located, 5 ms, pulsed holes with prediction, 60 frames, scenes
+    1-12) grow 0.6 from 4 px took removed / kept from 0.903 / 0.965 to 0.918 / 0.956 (from frame
+    20: 0.935 / 0.968 to 0.953 / 0.960; held out, scenes 13-24, 0.909 / 0.965 to 0.920 / 0.956),
+    where 2 projector px added to every hole (``margin``) cost 0.007-0.02 of the scene light and
+    removed no more.
+    """
+    if grow == 0 or len(holes) == 0:
+        return holes
+    floor = start * frame_width / GROW_REFERENCE_WIDTH
+    radii = holes.radii + grow * np.maximum(holes.radii - floor, 0.0)
+    return Detections(holes.centres, radii, holes.scores, holes.track_ids)
 
 
 def render_pattern(detections: Detections, *, size: tuple[int, int] = (1280, 800),

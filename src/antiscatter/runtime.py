@@ -28,7 +28,7 @@ from .detections import Detections
 from .errors import UsageError, check_output_path
 from .levels import HoleLevels
 from .outputs import LightOutput, open_output
-from .pattern import camera_light, render_pattern, scale_mapping
+from .pattern import camera_light, grow_holes, render_pattern, scale_mapping
 from .probe import Intervals
 from .sources import FrameSource, open_source, parse_crop
 from .stats import RunningStats
@@ -459,8 +459,10 @@ class _Pipeline:
         t_start = self.clock()
         buffer = self.buffers[self.next_buffer]
         self.next_buffer = (self.next_buffer + 1) % len(self.buffers)
+        grow = self.config.pattern
+        holes = grow_holes(rec.pattern, grow=grow.grow, start=grow.grow_from, frame_width=self.camera_size[0])
         if self.probe is not None:
-            holes, margin = rec.pattern, self.config.pattern.margin
+            margin = self.config.pattern.margin
             rec.hole_ids = Intervals.of(rec.probes).ids  # the holes worth drawing (DepthProbe.min_worth)
             grey = self.levels.grey(holes.track_ids) if self.levels is not None else None
             # pulse: between exposures each track's whole interval is dark; the probe's half is
@@ -474,7 +476,6 @@ class _Pipeline:
                                                  out=self.exposure_buffer,
                                                  hole=self.pulse_level if grey is None else grey, given_only=True)
         else:
-            holes = rec.pattern
             rec.hole_ids = holes.track_ids
             draw = {"size": self.projector_size, "mapping": self.mapping, "margin": self.config.pattern.margin}
             grey = self.levels.grey(holes.track_ids) if self.levels is not None else None

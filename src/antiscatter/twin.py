@@ -54,7 +54,7 @@ from .detection import make_detector
 from .detections import Detections
 from .errors import UsageError
 from .levels import LEVELS, REST, HoleLevels
-from .pattern import camera_light, render_pattern, scale_mapping
+from .pattern import GROW_REFERENCE_WIDTH, camera_light, grow_holes, render_pattern, scale_mapping
 from .simulate import make_scene
 from .probe import MIN_WORTH, DepthProbe, Intervals
 from .tracking import Prediction
@@ -207,6 +207,8 @@ class TwinRun:
     levels: str = "adaptive"
     min_worth: float = MIN_WORTH
     rest: int = REST
+    grow: float = 0.0
+    grow_from: float = 4.0
 
     def __post_init__(self) -> None:
         if self.levels not in LEVELS:
@@ -275,14 +277,16 @@ def backscatter_weight(scene: Any, geometry: "TwinGeometry", particles: dict[str
 def _holes_pattern(holes: Detections, run: TwinRun, *, size: tuple[int, int], mapping: np.ndarray,
                    buffer: np.ndarray, segments: DepthProbe | None = None,
                    probes: Mapping | None = None, levels: HoleLevels | None = None,
-                   lifted: bool = False) -> np.ndarray:
+                   lifted: bool = False, frame_width: int = GROW_REFERENCE_WIDTH) -> np.ndarray:
     """The projector pattern for ``holes`` (camera pixels) under the run's mapping; float 0..1.
 
     segments: draw each hole along its particle's epipolar segment -- over ``probes``' interval
     where given, over the whole near..far range otherwise -- instead of at ``mapping``.
     levels: each hole's own light (dim holes, or pulsed ones while the camera exposes:
-    ``lifted``); None: ``dim_level`` for all.
+    ``lifted``); None: ``dim_level`` for all.  The holes grow as the run says (``grow``,
+    :func:`~antiscatter.pattern.grow_holes`, for camera frames ``frame_width`` wide), as run's do.
     """
+    holes = grow_holes(holes, grow=run.grow, start=run.grow_from, frame_width=frame_width)
     dim = run.strategy == "dim" or lifted
     own = levels.grey(holes.track_ids) if dim and levels is not None else 0
     if segments is not None:
@@ -347,7 +351,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
     queue: list[tuple[float, np.ndarray]] = []  # (time the pattern goes on, pattern)
     buffer = np.empty((ph, pw), np.uint8)
     drawn = {"size": geometry.projector_size, "mapping": camera_mapping, "buffer": buffer, "segments": segments,
-             "levels": levels}
+             "levels": levels, "frame_width": geometry.camera_size[0]}
     background_map = geometry.plane_mapping(geometry.background_m)
     inverse_bg = np.linalg.inv(background_map)
     lit_area = cv2.warpPerspective(full, inverse_bg, geometry.camera_size, flags=cv2.INTER_NEAREST,
@@ -497,6 +501,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
             "strategy": run.strategy if run.detector else "none", "dim_level": run.dim_level,
             "levels": ("adaptive" if levels is not None else "fixed") if run.strategy in ("dim", "pulse") else None,
             "rest": levels.rest if levels is not None else None,
+            "grow": run.grow if run.detector else None, "grow_from": run.grow_from if run.detector and run.grow else None,
             "min_worth": run.min_worth if probe is not None else None,
             "latency_ms": latency_ms,
             "baseline_m": geometry.baseline_m, "backscatter_removed": removed,

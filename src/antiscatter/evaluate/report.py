@@ -209,15 +209,17 @@ def scoreboard(*, scenarios: dict[str, Any], catalogue_version: int, detectors: 
                             ("scene_light_kept_steady", "kept, steady", "{:.3f}"),
                             ("removed_range", "removed, range", "")])
         data["twin"] = rows
-        md += ["", "### A projector with a lens", "",
-               "The same loops with the projector's pattern sharp only at the distance it is focused at "
-               f"(`twin --projector-aperture-mm 6 --projector-focus-m F`: a {LENS_APERTURE_MM:g} mm aperture, an "
-               "ML550-class lens, about 12 mm at f/2), 5 ms, pulsed holes with prediction; a particle at depth "
-               "Z gets its hole blurred by a disc 1536 px x A |1/F - 1/Z| across. The pinhole rows are "
-               "the table's above.", ""]
+        md += ["", "### A projector with a lens, and holes grown with their size", "",
+               "The same loops (5 ms, pulsed holes with prediction) with the projector's pattern sharp only at "
+               "the distance it is focused at (`twin --projector-aperture-mm 6 --projector-focus-m F`: a "
+               f"{LENS_APERTURE_MM:g} mm aperture, an ML550-class lens, about 12 mm at f/2; a particle at depth "
+               "Z gets its hole blurred by a disc 1536 px x A |1/F - 1/Z| across), and with each hole's radius "
+               f"beyond {GROW_FROM:g} px grown by {GROW:g} times the excess (`--grow {GROW:g}`). The plain "
+               "pinhole rows are the table's above.", ""]
         rows = _lens_rows(twin_frames, log, seeds=twin_seeds)
         md += _table(rows, [("baseline_m", "baseline (m)", "{:g}"), ("run", "system", ""),
-                            ("lens", "projector", ""), ("backscatter_removed", "removed", "{:.3f}"),
+                            ("lens", "projector", ""), ("grow", "grow", "{:g}"),
+                            ("backscatter_removed", "removed", "{:.3f}"),
                             ("scene_light_kept", "kept", "{:.3f}"),
                             ("backscatter_removed_steady", "removed, steady", "{:.3f}"),
                             ("scene_light_kept_steady", "kept, steady", "{:.3f}"),
@@ -264,27 +266,33 @@ def _twin_rows(frames: int, log: Callable[[str], None], *, seeds: int = 3,
     return rows
 
 
-#: the scoreboard's projector lens: aperture (mm) and the distances it is focused at (m)
+#: the scoreboard's projector lens: aperture (mm) and the distances it is focused at (m); its hole growth
 LENS_APERTURE_MM = 6.0
 LENS_FOCUS_M = (3.0, 1.0, 0.5)
+GROW, GROW_FROM = 0.6, 4.0
 
 
 def _lens_rows(frames: int, log: Callable[[str], None], *, seeds: int = 3,
                workers: int | None = None) -> list[dict[str, Any]]:
     """The lens table's rows: co-located pulsed holes and, at 12 cm, pulsed depth probing, with
-    prediction at 5 ms, under a pinhole projector and one of ``LENS_APERTURE_MM`` focused at each
-    of ``LENS_FOCUS_M``."""
+    prediction at 5 ms, under a pinhole projector grown by ``GROW`` and one of ``LENS_APERTURE_MM``
+    focused at each of ``LENS_FOCUS_M``, plain and grown at the nearest and farthest focus."""
+    from dataclasses import replace
+
     from ..twin import TwinRun
 
     runs = ((0.0, TwinRun("contrast", "calibrated", "pulse", True)), (0.12, TwinRun("contrast", "probe", "pulse", True)))
-    lenses = [(0.0, 0.0)] + [(LENS_APERTURE_MM / 1e3, f) for f in LENS_FOCUS_M]
-    jobs = [(run, baseline, 5.0, seed, frames, aperture, focus)
-            for baseline, run in runs for aperture, focus in lenses for seed in range(1, seeds + 1)]
+    aperture, near, far = LENS_APERTURE_MM / 1e3, min(LENS_FOCUS_M), max(LENS_FOCUS_M)
+    lenses = [(0.0, 0.0, GROW)] + [(aperture, f, 0.0) for f in LENS_FOCUS_M] + [(aperture, far, GROW),
+                                                                               (aperture, near, GROW)]
+    jobs = [(replace(run, grow=grow, grow_from=GROW_FROM), baseline, 5.0, seed, frames, aperture, focus)
+            for baseline, run in runs for aperture, focus, grow in lenses for seed in range(1, seeds + 1)]
     rows = []
     for job, group in _twin_groups(jobs, seeds, log, workers):
         run, baseline, _, _, _, aperture, focus = job
         lens = f"{aperture * 1e3:g} mm, focused at {focus:g} m" if aperture else "pinhole"
-        rows.append({"baseline_m": baseline, "run": _run_name(run, group[0]), "lens": lens, **_group_figures(group)})
+        rows.append({"baseline_m": baseline, "run": _run_name(run, group[0]), "lens": lens, "grow": run.grow,
+                     **_group_figures(group)})
     return rows
 
 
