@@ -326,12 +326,13 @@ def test_grow_widens_the_big_holes_drawn(tmp_path, cli):
         assert result.code == 0, result.err
         return int((cv2.imread(str(out / "0.png"), cv2.IMREAD_UNCHANGED) == 0).sum())
 
-    plain = dark()
+    plain = dark("--grow", "0")
     assert plain > 0
     # the disc (radius 5 in a 160 px wide frame) is found with a hole of 6-7 px, above 4 x 160 / 800
     # = 0.8 px: it grows by the excess, near doubling its radius -- about 3.5x the dark area
     assert 3.0 < dark("--grow", "1", "--grow-from", "4") / plain < 4.0
     assert dark("--grow", "1", "--grow-from", "100") == plain  # no hole that big: none grows
+    assert 2.0 < dark() / plain < 3.0  # by default 0.6 of the excess over 4 px
     bad = cli("run", str(frames), "--grow", "-1")
     assert bad.code == 2 and "grow: got -1.0, allowed a number >= 0" in bad.err and "Traceback" not in bad.err
 

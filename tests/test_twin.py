@@ -302,10 +302,9 @@ def test_scoreboard_lens_table(monkeypatch):
 
     monkeypatch.setattr(twin, "simulate_loop", small)
     rows = _lens_rows(2, lambda s: None, seeds=1, workers=1)
-    lenses = [("pinhole", 0.6), ("6 mm, focused at 3 m", 0), ("6 mm, focused at 1 m", 0),
-              ("6 mm, focused at 0.5 m", 0), ("6 mm, focused at 3 m", 0.6), ("6 mm, focused at 0.5 m", 0.6)]
+    lenses = [("pinhole", 0)] + [(f"6 mm, focused at {f} m", grow) for grow in (0, 0.6) for f in (3, 1, 0.5)]
     assert [(r["baseline_m"], r["lens"], r["grow"]) for r in rows] == [(b, *lens) for b in (0.0, 0.12) for lens in lenses]
-    assert [r["run"] for r in rows[:6]] == ["default, calibrated, pulse, predict"] * 6
+    assert [r["run"] for r in rows[:7]] == ["default, calibrated, pulse, predict"] * 7
     assert rows[-1]["run"] == "default, probe, pulse, predict"
     assert seen[1] == (0.0, 0.006, 3.0) and seen[-1] == (0.12, 0.006, 0.5)  # each loop under its own lens
 
@@ -402,8 +401,8 @@ def test_a_defocused_projector_leaks_light_into_holes_and_focusing_on_the_partic
         aperture_m, focus_m, leaks):
     # the dim holes of test_dim_holes_keep_the_particle_found (0.8 removed, exactly, with a pinhole
     # projector); the particle is 0.6 m away: a 30 mm aperture focused at 3 m blurs its hole by
-    # 31 projector px, more than the hole's 12 px margin -- focused at 0.6 m, not at all
-    out = simulate_loop(TwinRun("contrast", "calibrated", "dim", dim_level=0.2, margin_px=12.0),
+    # 31 projector px, more than the hole's 12 px margin (not grown) -- focused at 0.6 m, not at all
+    out = simulate_loop(TwinRun("contrast", "calibrated", "dim", dim_level=0.2, margin_px=12.0, grow=0.0),
                         geometry=TwinGeometry(camera_size=SIZE, baseline_m=0.0, projector_aperture_m=aperture_m,
                                               projector_focus_m=focus_m),
                         frames=24, latency_ms=5, scene=one_static_particle())

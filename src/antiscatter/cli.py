@@ -34,6 +34,7 @@ def _detector_help() -> str:
 def build_parser() -> argparse.ArgumentParser:
     from .levels import LEVELS, REST
     from .probe import MIN_WORTH
+    from .pattern import GROW, GROW_FROM
 
     parser = _Parser(
         prog="antiscatter",
@@ -113,8 +114,8 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--projector-size", metavar="WxH", help="projector resolution (default 1280x800)")
     g.add_argument("--margin", type=float, help="pixels added to every hole's radius (default 0)")
     g.add_argument("--grow", type=float, help="holes grow in proportion to their size: each radius beyond "
-                   "--grow-from by this many times the excess (default 0 = off; 0.6 trades about 0.01 of the "
-                   "scene light for 0.01-0.02 more backscatter removed in the twin)")
+                   "--grow-from by this many times the excess (default 0.6: in the twin about 0.01 of the scene "
+                   "light for 0.01-0.02 more backscatter removed, 0.05 under a defocused projector; 0 = off)")
     g.add_argument("--grow-from", type=float, help="camera pixels (for frames 800 px wide; in proportion for "
                    "others) a hole's radius must exceed to grow (default 4)")
     g.add_argument("--calibration", metavar="FILE", help="a calibration from 'antiscatter calibrate': its "
@@ -292,9 +293,9 @@ def build_parser() -> argparse.ArgumentParser:
     tw.add_argument("--rest", type=int, default=REST, help="adaptive levels: frames a confirmed track's hole stays "
                     f"fully dark after each frame that found its particle (default {REST}, as run; 0 = always "
                     "dimmed; not while probing)")
-    tw.add_argument("--grow", type=float, default=0.0, help="holes grow in proportion to their size, as run --grow "
-                    "(default 0 = off)")
-    tw.add_argument("--grow-from", type=float, default=4.0, help="as run --grow-from (default 4)")
+    tw.add_argument("--grow", type=float, default=GROW, help="holes grow in proportion to their size, as run --grow "
+                    f"(default {GROW:g}, as run; 0 = off)")
+    tw.add_argument("--grow-from", type=float, default=GROW_FROM, help=f"as run --grow-from (default {GROW_FROM:g})")
     tw.add_argument("--projector-size", default="1280x800", metavar="WxH", help="projector size (default 1280x800)")
     tw.add_argument("--projector-aperture-mm", type=float, default=0.0, help="projector lens aperture diameter, mm "
                     "(default 0: a pinhole projector, sharp at every depth; an ML550-class lens, about 12 mm at "

@@ -23,6 +23,7 @@ import numpy as np
 from .errors import UsageError
 from .levels import LEVELS, MIN_LEVEL, REST
 from .probe import MIN_WORTH
+from .pattern import GROW, GROW_FROM
 
 __all__ = ["SourceConfig", "DetectorConfig", "PatternConfig", "OutputConfig", "RunConfig", "TrackConfig",
            "LightConfig", "STRATEGIES", "Config", "load_config", "build_section", "parse_param", "parse_size"]
@@ -109,7 +110,7 @@ class PatternConfig:
     margin: pixels added to every hole's radius.
     grow, grow_from: each hole's radius beyond ``grow_from`` camera pixels (for frames 800 px
         wide, in proportion for others) grows by ``grow`` times the excess
-        (:func:`~antiscatter.pattern.grow_holes`); grow 0 (default) = off.
+        (:func:`~antiscatter.pattern.grow_holes`); default 0.6 from 4 px; grow 0 = off.
     mapping: (3, 3) camera-to-projector homography as nested lists; empty =
         identity scaled from the camera size to the projector size.
     calibration: the calibration file the mapping came from (its depth model serves
@@ -119,8 +120,8 @@ class PatternConfig:
     width: int = 1280
     height: int = 800
     margin: float = 0.0
-    grow: float = 0.0
-    grow_from: float = 4.0
+    grow: float = GROW
+    grow_from: float = GROW_FROM
     mapping: tuple = ()
     calibration: str = ""
 

@@ -459,15 +459,18 @@ class _Pipeline:
         t_start = self.clock()
         buffer = self.buffers[self.next_buffer]
         self.next_buffer = (self.next_buffer + 1) % len(self.buffers)
-        grow = self.config.pattern
-        holes = grow_holes(rec.pattern, grow=grow.grow, start=grow.grow_from, frame_width=self.camera_size[0])
+        settings = self.config.pattern
+        grown = grow_holes(rec.pattern, grow=settings.grow, start=settings.grow_from, frame_width=self.camera_size[0])
         if self.probe is not None:
-            margin = self.config.pattern.margin
+            # a probe the camera sees is drawn as found: grown, its halves would overlap and its verdict
+            # blur; the whole intervals dark between pulsed exposures grow
+            holes, margin = rec.pattern, settings.margin
             rec.hole_ids = Intervals.of(rec.probes).ids  # the holes worth drawing (DepthProbe.min_worth)
             grey = self.levels.grey(holes.track_ids) if self.levels is not None else None
             # pulse: between exposures each track's whole interval is dark; the probe's half is
             # only needed while the camera looks, lifted to the dim level (or each track's own)
-            rec.pattern = self.probe.render(holes, rec.probes if rec.intervals is None else rec.intervals,
+            rec.pattern = self.probe.render(holes if rec.intervals is None else grown,
+                                            rec.probes if rec.intervals is None else rec.intervals,
                                             size=self.projector_size, margin=margin, out=buffer,
                                             hole=grey if grey is not None and rec.intervals is None
                                             else self.hole_level, given_only=True)
@@ -476,6 +479,7 @@ class _Pipeline:
                                                  out=self.exposure_buffer,
                                                  hole=self.pulse_level if grey is None else grey, given_only=True)
         else:
+            holes = grown
             rec.hole_ids = holes.track_ids
             draw = {"size": self.projector_size, "mapping": self.mapping, "margin": self.config.pattern.margin}
             grey = self.levels.grey(holes.track_ids) if self.levels is not None else None

@@ -54,7 +54,7 @@ from .detection import make_detector
 from .detections import Detections
 from .errors import UsageError
 from .levels import LEVELS, REST, HoleLevels
-from .pattern import GROW_REFERENCE_WIDTH, camera_light, grow_holes, render_pattern, scale_mapping
+from .pattern import GROW, GROW_FROM, GROW_REFERENCE_WIDTH, camera_light, grow_holes, render_pattern, scale_mapping
 from .simulate import make_scene
 from .probe import MIN_WORTH, DepthProbe, Intervals
 from .tracking import Prediction
@@ -207,8 +207,8 @@ class TwinRun:
     levels: str = "adaptive"
     min_worth: float = MIN_WORTH
     rest: int = REST
-    grow: float = 0.0
-    grow_from: float = 4.0
+    grow: float = GROW
+    grow_from: float = GROW_FROM
 
     def __post_init__(self) -> None:
         if self.levels not in LEVELS:
@@ -277,16 +277,18 @@ def backscatter_weight(scene: Any, geometry: "TwinGeometry", particles: dict[str
 def _holes_pattern(holes: Detections, run: TwinRun, *, size: tuple[int, int], mapping: np.ndarray,
                    buffer: np.ndarray, segments: DepthProbe | None = None,
                    probes: Mapping | None = None, levels: HoleLevels | None = None,
-                   lifted: bool = False, frame_width: int = GROW_REFERENCE_WIDTH) -> np.ndarray:
+                   lifted: bool = False, frame_width: int = GROW_REFERENCE_WIDTH, grow: bool = True) -> np.ndarray:
     """The projector pattern for ``holes`` (camera pixels) under the run's mapping; float 0..1.
 
     segments: draw each hole along its particle's epipolar segment -- over ``probes``' interval
     where given, over the whole near..far range otherwise -- instead of at ``mapping``.
     levels: each hole's own light (dim holes, or pulsed ones while the camera exposes:
-    ``lifted``); None: ``dim_level`` for all.  The holes grow as the run says (``grow``,
-    :func:`~antiscatter.pattern.grow_holes`, for camera frames ``frame_width`` wide), as run's do.
+    ``lifted``); None: ``dim_level`` for all.  ``grow``: the holes grow as the run says (``run.grow``,
+    :func:`~antiscatter.pattern.grow_holes`, for camera frames ``frame_width`` wide), as run's do
+    -- all but a probe the camera sees (grown, its halves would overlap).
     """
-    holes = grow_holes(holes, grow=run.grow, start=run.grow_from, frame_width=frame_width)
+    if grow:
+        holes = grow_holes(holes, grow=run.grow, start=run.grow_from, frame_width=frame_width)
     dim = run.strategy == "dim" or lifted
     own = levels.grey(holes.track_ids) if dim and levels is not None else 0
     if segments is not None:
@@ -439,7 +441,8 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                 # pulse: only the exposure's refresh needs the probe's half; the others keep the
                 # whole interval that may hold the particle dark
                 shown = _holes_pattern(displayed.prediction.holes(at), run, lifted=pulsed,
-                                       probes=displayed.between if j else displayed.probes, **drawn)
+                                       probes=displayed.between if j else displayed.probes,
+                                       grow=bool(j) and displayed.between is not displayed.probes, **drawn)
             elif isinstance(displayed, _Fixed):
                 shown = _holes_pattern(displayed.holes, run, lifted=True, **drawn) if pulsed else displayed.light
             else:

@@ -199,7 +199,8 @@ def scoreboard(*, scenarios: dict[str, Any], catalogue_version: int, detectors: 
                f"{steady_from(twin_frames)} on (after the detector's warm-up and the first "
                "tracks' confirmation). Holes drawn with the twin's exact geometry at the working "
                "depth (\"calibrated\"), stretched over each particle's disparity range (\"range\"), or "
-               "at each track's depth found by bisection under dim or pulsed holes (\"probe\"). With a mapping other "
+               "at each track's depth found by bisection under dim or pulsed holes (\"probe\"), each grown with "
+               "its size as run grows it (`--grow`). With a mapping other "
                "than identity the detector is told the light its exposure got (compensation).", ""]
         rows = _twin_rows(twin_frames, log, seeds=twin_seeds)
         md += _table(rows, [("baseline_m", "baseline (m)", "{:g}"), ("latency_ms", "latency (ms)", "{:g}"),
@@ -209,13 +210,15 @@ def scoreboard(*, scenarios: dict[str, Any], catalogue_version: int, detectors: 
                             ("scene_light_kept_steady", "kept, steady", "{:.3f}"),
                             ("removed_range", "removed, range", "")])
         data["twin"] = rows
+        from ..pattern import GROW, GROW_FROM
+
         md += ["", "### A projector with a lens, and holes grown with their size", "",
                "The same loops (5 ms, pulsed holes with prediction) with the projector's pattern sharp only at "
                "the distance it is focused at (`twin --projector-aperture-mm 6 --projector-focus-m F`: a "
                f"{LENS_APERTURE_MM:g} mm aperture, an ML550-class lens, about 12 mm at f/2; a particle at depth "
-               "Z gets its hole blurred by a disc 1536 px x A |1/F - 1/Z| across), and with each hole's radius "
-               f"beyond {GROW_FROM:g} px grown by {GROW:g} times the excess (`--grow {GROW:g}`). The plain "
-               "pinhole rows are the table's above.", ""]
+               "Z gets its hole blurred by a disc 1536 px x A |1/F - 1/Z| across), with holes grown as by "
+               f"default (each radius beyond {GROW_FROM:g} px by {GROW:g} times the excess) and not grown "
+               "(`--grow 0`). The pinhole rows with grown holes are the table's above.", ""]
         rows = _lens_rows(twin_frames, log, seeds=twin_seeds)
         md += _table(rows, [("baseline_m", "baseline (m)", "{:g}"), ("run", "system", ""),
                             ("lens", "projector", ""), ("grow", "grow", "{:g}"),
@@ -266,25 +269,25 @@ def _twin_rows(frames: int, log: Callable[[str], None], *, seeds: int = 3,
     return rows
 
 
-#: the scoreboard's projector lens: aperture (mm) and the distances it is focused at (m); its hole growth
+#: the scoreboard's projector lens: aperture (mm) and the distances it is focused at (m)
 LENS_APERTURE_MM = 6.0
 LENS_FOCUS_M = (3.0, 1.0, 0.5)
-GROW, GROW_FROM = 0.6, 4.0
 
 
 def _lens_rows(frames: int, log: Callable[[str], None], *, seeds: int = 3,
                workers: int | None = None) -> list[dict[str, Any]]:
     """The lens table's rows: co-located pulsed holes and, at 12 cm, pulsed depth probing, with
-    prediction at 5 ms, under a pinhole projector grown by ``GROW`` and one of ``LENS_APERTURE_MM``
-    focused at each of ``LENS_FOCUS_M``, plain and grown at the nearest and farthest focus."""
+    prediction at 5 ms, under a pinhole projector with holes not grown, and under one of
+    ``LENS_APERTURE_MM`` focused at each of ``LENS_FOCUS_M`` with holes grown (``GROW``, as by
+    default) and not."""
     from dataclasses import replace
 
+    from ..pattern import GROW, GROW_FROM
     from ..twin import TwinRun
 
     runs = ((0.0, TwinRun("contrast", "calibrated", "pulse", True)), (0.12, TwinRun("contrast", "probe", "pulse", True)))
-    aperture, near, far = LENS_APERTURE_MM / 1e3, min(LENS_FOCUS_M), max(LENS_FOCUS_M)
-    lenses = [(0.0, 0.0, GROW)] + [(aperture, f, 0.0) for f in LENS_FOCUS_M] + [(aperture, far, GROW),
-                                                                               (aperture, near, GROW)]
+    aperture = LENS_APERTURE_MM / 1e3
+    lenses = [(0.0, 0.0, 0.0)] + [(aperture, f, grow) for grow in (0.0, GROW) for f in LENS_FOCUS_M]
     jobs = [(replace(run, grow=grow, grow_from=GROW_FROM), baseline, 5.0, seed, frames, aperture, focus)
             for baseline, run in runs for aperture, focus, grow in lenses for seed in range(1, seeds + 1)]
     rows = []
