@@ -577,6 +577,28 @@ def test_depth_probe_leaves_out_the_holes_not_worth_their_light(tmp_path, cli, s
     assert bad.code == 2 and "light.min_worth: got -1.0, allowed a number >= 0" in bad.err
 
 
+def test_depth_probe_grows_the_dark_intervals_but_not_the_probe_the_camera_sees(tmp_path, cli):
+    calibration = tmp_path / "cal.json"
+    assert cli("calibrate", str(calibration), "--twin", "--size", "160x120").code == 0
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(frames / f"{i}.png"), draw_discs((160, 120), [(40.0, 40.0, 6.0), (110.0, 80.0, 6.0)]))
+
+    def unlit(*extra):
+        out = tmp_path / ("pat" + "".join(extra))
+        result = cli("run", str(frames), "--strategy", "pulse", "--dim-level", "0.2", "--depth", "probe",
+                     "--calibration", str(calibration), "--output", f"files:{out}", *extra)
+        assert result.code == 0, result.err
+        between = cv2.imread(str(out / "1.png"), cv2.IMREAD_UNCHANGED)
+        exposed = cv2.imread(str(out / "flash-2.png"), cv2.IMREAD_UNCHANGED)  # under which frame 2 is taken
+        return int((between < 255).sum()), int((exposed < 255).sum())
+
+    plain, grown = unlit("--grow", "0"), unlit()
+    assert grown[0] > 1.3 * plain[0]  # the whole intervals, dark between exposures, grow
+    assert grown[1] == plain[1] > 0  # the probes the camera looks through are drawn as found
+
+
 @pytest.mark.parametrize("strategy, exposed", [("dim", "{}.png"), ("pulse", "flash-{}.png")])
 def test_depth_probe_judges_each_verdict_by_the_pattern_the_exposure_was_taken_under(tmp_path, cli, monkeypatch,
                                                                                    strategy, exposed):
