@@ -303,7 +303,8 @@ def test_scoreboard_lens_table(monkeypatch):
     monkeypatch.setattr(twin, "simulate_loop", small)
     rows = _lens_rows(2, lambda s: None, seeds=1, workers=1)
     lenses = [("pinhole", 0)] + [(f"6 mm, focused at {f} m", grow) for grow in (0, 0.6) for f in (3, 1, 0.5)]
-    assert [(r["baseline_m"], r["lens"], r["grow"]) for r in rows] == [(b, *lens) for b in (0.0, 0.12) for lens in lenses]
+    assert [(r["baseline_m"], r["lens"], r["grow"]) for r in rows] == [(b, *lens) for b in (0.0, 0.12)
+                                                                       for lens in lenses]
     assert [r["run"] for r in rows[:7]] == ["default, calibrated, pulse, predict"] * 7
     assert rows[-1]["run"] == "default, probe, pulse, predict"
     assert seen[1] == (0.0, 0.006, 3.0) and seen[-1] == (0.12, 0.006, 0.5)  # each loop under its own lens

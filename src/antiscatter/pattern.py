@@ -69,8 +69,8 @@ def grow_holes(holes: Detections, *, grow: float, start: float, frame_width: int
     What takes a hole off its particle grows as 1/distance, as the particle's image does: a near
     particle is fast across the view (the prediction's error), out of the projector's focus
     (the hole's blurred rim) and large; the many small far ones keep their holes and the scene
-    its light.  ``GROW`` from ``GROW_FROM`` by default (run and twin).  In the twin (co-located, 5 ms, pulsed holes with prediction, 60 frames, scenes
-    1-12) grow 0.6 from 4 px took removed / kept from 0.903 / 0.965 to 0.918 / 0.956 (from frame
+    its light.  ``GROW`` from ``GROW_FROM`` by default (run and twin).  In the twin (co-located,
+    5 ms, pulsed holes with prediction, 60 frames, scenes 1-12) grow 0.6 from 4 px took removed / kept from 0.903 / 0.965 to 0.918 / 0.956 (from frame
     20: 0.935 / 0.968 to 0.953 / 0.960; held out, scenes 13-24, 0.909 / 0.965 to 0.920 / 0.956),
     where 2 projector px added to every hole (``margin``) cost 0.007-0.02 of the scene light and
     removed no more; grow 0.3 / 1.0: 0.913 / 0.961 and 0.920 / 0.950.  Under a projector with a

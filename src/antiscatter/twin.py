@@ -277,7 +277,8 @@ def backscatter_weight(scene: Any, geometry: "TwinGeometry", particles: dict[str
 def _holes_pattern(holes: Detections, run: TwinRun, *, size: tuple[int, int], mapping: np.ndarray,
                    buffer: np.ndarray, segments: DepthProbe | None = None,
                    probes: Mapping | None = None, levels: HoleLevels | None = None,
-                   lifted: bool = False, frame_width: int = GROW_REFERENCE_WIDTH, grow: bool = True) -> np.ndarray:
+                   lifted: bool = False, frame_width: int = GROW_REFERENCE_WIDTH,
+                   grow: bool = True) -> np.ndarray:
     """The projector pattern for ``holes`` (camera pixels) under the run's mapping; float 0..1.
 
     segments: draw each hole along its particle's epipolar segment -- over ``probes``' interval
@@ -504,7 +505,8 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
             "strategy": run.strategy if run.detector else "none", "dim_level": run.dim_level,
             "levels": ("adaptive" if levels is not None else "fixed") if run.strategy in ("dim", "pulse") else None,
             "rest": levels.rest if levels is not None else None,
-            "grow": run.grow if run.detector else None, "grow_from": run.grow_from if run.detector and run.grow else None,
+            "grow": run.grow if run.detector else None,
+            "grow_from": run.grow_from if run.detector and run.grow else None,
             "min_worth": run.min_worth if probe is not None else None,
             "latency_ms": latency_ms,
             "baseline_m": geometry.baseline_m, "backscatter_removed": removed,

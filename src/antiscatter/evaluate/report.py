@@ -285,7 +285,8 @@ def _lens_rows(frames: int, log: Callable[[str], None], *, seeds: int = 3,
     from ..pattern import GROW, GROW_FROM
     from ..twin import TwinRun
 
-    runs = ((0.0, TwinRun("contrast", "calibrated", "pulse", True)), (0.12, TwinRun("contrast", "probe", "pulse", True)))
+    runs = ((0.0, TwinRun("contrast", "calibrated", "pulse", True)),
+            (0.12, TwinRun("contrast", "probe", "pulse", True)))
     aperture = LENS_APERTURE_MM / 1e3
     lenses = [(0.0, 0.0, 0.0)] + [(aperture, f, grow) for grow in (0.0, GROW) for f in LENS_FOCUS_M]
     jobs = [(replace(run, grow=grow, grow_from=GROW_FROM), baseline, 5.0, seed, frames, aperture, focus)
