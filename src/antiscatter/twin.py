@@ -613,6 +613,7 @@ def plot_curves(path: str, *, geometry: TwinGeometry, preset: str = "mixed", fra
     if "by_focus" in curves:
         axes[3].set_title(f"against projector focus (baseline {geometry.baseline_m:g} m, latency 5 ms)")
         axes[3].set_xscale("log")
+        axes[3].minorticks_off()  # the log axis's own labels would sit among the distances'
         axes[3].set_xticks(list(focuses_m), [f"{f:g}" for f in focuses_m])
     handles, labels = axes[1].get_legend_handles_labels()
     fig.legend(handles, labels, loc="lower center", ncol=7, fontsize=7)
