@@ -268,7 +268,8 @@ def build_parser() -> argparse.ArgumentParser:
     tw = commands.add_parser(
         "twin", help="closed-loop digital twin: backscatter removed and scene light kept, per configuration",
         description="Run the system in a simulated loop of camera, processing latency and projector "
-                    "(pinhole camera and projector, baseline, projector refreshes) and report how much light "
+                    "(pinhole camera and projector -- or a projector lens --, baseline, projector refreshes) and "
+                    "report how much light "
                     "the pattern withholds from particles and keeps on the scene, for full light, seed and "
                     "default detectors with identity mapping, and the default detector with the exact "
                     "geometric (calibrated) mapping under each strategy (none, dim, pulse, flash, coast) with and "
@@ -303,7 +304,8 @@ def build_parser() -> argparse.ArgumentParser:
     tw.add_argument("--projector-focus-m", type=float, default=0.0, help="distance the projector is focused at, m "
                     "(default 0: the background's, 3 m)")
     tw.add_argument("--plot", metavar="FILE.png", help="also draw backscatter removed and scene light kept "
-                    "against latency, against baseline and against particle speed (a current across the view)")
+                    "against latency, against baseline and against particle speed (a current across the view), "
+                    "and with a projector lens against the distance it is focused at")
     tw.add_argument("--calibration", metavar="FILE", help="use this calibration for the calibrated runs (default: "
                     "the twin's exact geometry); its error against the true geometry is reported")
     tw.add_argument("--json", action="store_true", help="print {\"runs\": [...]}")

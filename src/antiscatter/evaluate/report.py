@@ -188,6 +188,7 @@ def scoreboard(*, scenarios: dict[str, Any], catalogue_version: int, detectors: 
                             ("pred3", "pred. err +3 (px)", "{:.2f}")])
         data["tracking"] = rows
     if twin_frames:
+        from ..pattern import GROW, GROW_FROM
         from ..twin import steady_from
 
         md += ["", "## Closed loop (`antiscatter twin`)", "",
@@ -210,8 +211,6 @@ def scoreboard(*, scenarios: dict[str, Any], catalogue_version: int, detectors: 
                             ("scene_light_kept_steady", "kept, steady", "{:.3f}"),
                             ("removed_range", "removed, range", "")])
         data["twin"] = rows
-        from ..pattern import GROW, GROW_FROM
-
         md += ["", "### A projector with a lens, and holes grown with their size", "",
                "The same loops (5 ms, pulsed holes with prediction) with the projector's pattern sharp only at "
                "the distance it is focused at (`twin --projector-aperture-mm 6 --projector-focus-m F`: a "
