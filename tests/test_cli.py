@@ -513,16 +513,24 @@ def test_compensation_tells_the_detector_the_light_of_the_last_pattern(tmp_path,
     assert load_config(overrides=mapped).light.compensate is True
 
 
-def test_depth_probe_draws_each_unknown_particle_over_its_epipolar_segment(tmp_path, cli):
-    from antiscatter.calibration import load_calibration
-
+def _probe_scene(tmp_path, cli, discs, count=3):
+    """(a twin calibration with a baseline for 160x120 frames, a folder of ``count`` such frames of
+    ``discs``), for the depth-probing runs."""
     calibration = tmp_path / "cal.json"
     made = cli("calibrate", str(calibration), "--twin", "--size", "160x120")
     assert made.code == 0, made.err
     frames = tmp_path / "frames"
     frames.mkdir()
-    for i in range(3):  # right of centre, so the whole segment lands on the projector
-        cv2.imwrite(str(frames / f"{i}.png"), draw_discs((160, 120), [(100.0, 60.0, 3.0)]))
+    for i in range(count):
+        cv2.imwrite(str(frames / f"{i}.png"), draw_discs((160, 120), discs))
+    return calibration, frames
+
+
+def test_depth_probe_draws_each_unknown_particle_over_its_epipolar_segment(tmp_path, cli):
+    from antiscatter.calibration import load_calibration
+
+    # right of centre, so the whole segment lands on the projector
+    calibration, frames = _probe_scene(tmp_path, cli, [(100.0, 60.0, 3.0)])
     result = cli("run", str(frames), "--strategy", "dim", "--dim-level", "0.2", "--depth", "probe",
                  "--calibration", str(calibration), "--output", f"files:{tmp_path / 'pat'}",
                  "--detections", str(tmp_path / "d.csv"))
@@ -578,12 +586,7 @@ def test_depth_probe_leaves_out_the_holes_not_worth_their_light(tmp_path, cli, s
 
 
 def test_depth_probe_grows_the_dark_intervals_but_not_the_probe_the_camera_sees(tmp_path, cli):
-    calibration = tmp_path / "cal.json"
-    assert cli("calibrate", str(calibration), "--twin", "--size", "160x120").code == 0
-    frames = tmp_path / "frames"
-    frames.mkdir()
-    for i in range(3):
-        cv2.imwrite(str(frames / f"{i}.png"), draw_discs((160, 120), [(40.0, 40.0, 6.0), (110.0, 80.0, 6.0)]))
+    calibration, frames = _probe_scene(tmp_path, cli, [(40.0, 40.0, 6.0), (110.0, 80.0, 6.0)])
 
     def unlit(*extra):
         out = tmp_path / ("pat" + "".join(extra))
@@ -604,12 +607,7 @@ def test_depth_probe_judges_each_verdict_by_the_pattern_the_exposure_was_taken_u
                                                                                    strategy, exposed):
     from antiscatter.probe import DepthProbe
 
-    calibration = tmp_path / "cal.json"
-    assert cli("calibrate", str(calibration), "--twin", "--size", "160x120").code == 0
-    frames = tmp_path / "frames"
-    frames.mkdir()
-    for i in range(4):
-        cv2.imwrite(str(frames / f"{i}.png"), draw_discs((160, 120), [(100.0, 60.0, 3.0), (40.0, 30.0, 3.0)]))
+    calibration, frames = _probe_scene(tmp_path, cli, [(100.0, 60.0, 3.0), (40.0, 30.0, 3.0)], count=4)
     seen = []
     real = DepthProbe.observe
 
@@ -633,12 +631,7 @@ def test_depth_probe_judges_each_verdict_by_the_pattern_the_exposure_was_taken_u
 def test_depth_probe_with_pulse_keeps_the_whole_interval_dark_and_probes_half_for_the_capture(tmp_path, cli):
     from antiscatter.calibration import load_calibration
 
-    calibration = tmp_path / "cal.json"
-    assert cli("calibrate", str(calibration), "--twin", "--size", "160x120").code == 0
-    frames = tmp_path / "frames"
-    frames.mkdir()
-    for i in range(3):
-        cv2.imwrite(str(frames / f"{i}.png"), draw_discs((160, 120), [(100.0, 60.0, 3.0)]))
+    calibration, frames = _probe_scene(tmp_path, cli, [(100.0, 60.0, 3.0)])
     result = cli("run", str(frames), "--strategy", "pulse", "--dim-level", "0.2", "--depth", "probe",
                  "--calibration", str(calibration), "--output", f"files:{tmp_path / 'pat'}")
     assert result.code == 0, result.err

@@ -460,7 +460,10 @@ class _Pipeline:
         buffer = self.buffers[self.next_buffer]
         self.next_buffer = (self.next_buffer + 1) % len(self.buffers)
         settings = self.config.pattern
-        grown = grow_holes(rec.pattern, grow=settings.grow, start=settings.grow_from, frame_width=self.camera_size[0])
+
+        def grown(holes: Detections) -> Detections:
+            return grow_holes(holes, grow=settings.grow, start=settings.grow_from, frame_width=self.camera_size[0])
+
         if self.probe is not None:
             # a probe the camera sees is drawn as found: grown, its halves would overlap and its verdict
             # blur; the whole intervals dark between pulsed exposures grow
@@ -469,7 +472,7 @@ class _Pipeline:
             grey = self.levels.grey(holes.track_ids) if self.levels is not None else None
             # pulse: between exposures each track's whole interval is dark; the probe's half is
             # only needed while the camera looks, lifted to the dim level (or each track's own)
-            rec.pattern = self.probe.render(holes if rec.intervals is None else grown,
+            rec.pattern = self.probe.render(holes if rec.intervals is None else grown(holes),
                                             rec.probes if rec.intervals is None else rec.intervals,
                                             size=self.projector_size, margin=margin, out=buffer,
                                             hole=grey if grey is not None and rec.intervals is None
@@ -479,7 +482,7 @@ class _Pipeline:
                                                  out=self.exposure_buffer,
                                                  hole=self.pulse_level if grey is None else grey, given_only=True)
         else:
-            holes = grown
+            holes = grown(rec.pattern)
             rec.hole_ids = holes.track_ids
             draw = {"size": self.projector_size, "mapping": self.mapping, "margin": self.config.pattern.margin}
             grey = self.levels.grey(holes.track_ids) if self.levels is not None else None

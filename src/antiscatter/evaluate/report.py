@@ -205,11 +205,7 @@ def scoreboard(*, scenarios: dict[str, Any], catalogue_version: int, detectors: 
                "than identity the detector is told the light its exposure got (compensation).", ""]
         rows = _twin_rows(twin_frames, log, seeds=twin_seeds)
         md += _table(rows, [("baseline_m", "baseline (m)", "{:g}"), ("latency_ms", "latency (ms)", "{:g}"),
-                            ("run", "system", ""), ("backscatter_removed", "removed", "{:.3f}"),
-                            ("scene_light_kept", "kept", "{:.3f}"),
-                            ("backscatter_removed_steady", "removed, steady", "{:.3f}"),
-                            ("scene_light_kept_steady", "kept, steady", "{:.3f}"),
-                            ("removed_range", "removed, range", "")])
+                            ("run", "system", ""), *_TWIN_FIGURES])
         data["twin"] = rows
         md += ["", "### A projector with a lens, and holes grown with their size", "",
                "The same loops (5 ms, pulsed holes with prediction) with the projector's pattern sharp only at "
@@ -220,14 +216,15 @@ def scoreboard(*, scenarios: dict[str, Any], catalogue_version: int, detectors: 
                "(`--grow 0`). The pinhole rows with grown holes are the table's above.", ""]
         rows = _lens_rows(twin_frames, log, seeds=twin_seeds)
         md += _table(rows, [("baseline_m", "baseline (m)", "{:g}"), ("run", "system", ""),
-                            ("lens", "projector", ""), ("grow", "grow", "{:g}"),
-                            ("backscatter_removed", "removed", "{:.3f}"),
-                            ("scene_light_kept", "kept", "{:.3f}"),
-                            ("backscatter_removed_steady", "removed, steady", "{:.3f}"),
-                            ("scene_light_kept_steady", "kept, steady", "{:.3f}"),
-                            ("removed_range", "removed, range", "")])
+                            ("lens", "projector", ""), ("grow", "grow", "{:g}"), *_TWIN_FIGURES])
         data["twin_lens"] = rows
     return "\n".join(md) + "\n", data
+
+
+#: the twin tables' figure columns (:func:`_group_figures`'s keys)
+_TWIN_FIGURES = [("backscatter_removed", "removed", "{:.3f}"), ("scene_light_kept", "kept", "{:.3f}"),
+                 ("backscatter_removed_steady", "removed, steady", "{:.3f}"),
+                 ("scene_light_kept_steady", "kept, steady", "{:.3f}"), ("removed_range", "removed, range", "")]
 
 
 def _tracking_rows(scenarios: dict[str, Any], matching: Any, frames_limit: int | None,
@@ -328,7 +325,7 @@ def _run_name(run: Any, out: dict[str, Any]) -> str:
 
 def _group_figures(group: list[dict[str, Any]]) -> dict[str, Any]:
     """The mean figures over one run's scenes, and the range of removed among them."""
-    keys = ("backscatter_removed", "scene_light_kept", "backscatter_removed_steady", "scene_light_kept_steady")
+    keys = [key for key, _, _ in _TWIN_FIGURES if key != "removed_range"]
     removed = [o["backscatter_removed"] for o in group]
     return {**{key: float(np.mean([o[key] for o in group])) for key in keys},
             "removed_range": f"{min(removed):.3f}-{max(removed):.3f}"}
