@@ -10,7 +10,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import min_weight_full_bipartite_matching
 
-__all__ = ["match", "gates"]
+__all__ = ["match", "gates", "pairs_within"]
 
 #: added to every real pair's cost in the sparse problem, whose solver takes no zero weights (two
 #: points at the same place); the same for every match, so it changes no choice between them
@@ -100,6 +100,18 @@ def match(truth_centres: np.ndarray, truth_gates: np.ndarray, det_centres: np.nd
     free_dets[matches[:, 1]] = False
     unmatched_truth, unmatched_dets = np.flatnonzero(free_truth), np.flatnonzero(free_dets)
     return matches, unmatched_truth, unmatched_dets
+
+
+def pairs_within(centres: np.ndarray, reach: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every (centre, point) pair closer than the centre's ``reach``: (C, 2) centres, (C,) reach
+    and (P, 2) points in pixels; returns (K,) centre and (K,) point indices (the sweep of
+    :func:`_candidates`, every point within reach kept)."""
+    centres = np.asarray(centres, dtype=np.float64).reshape(-1, 2)
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    if len(centres) == 0 or len(points) == 0:
+        return np.empty(0, np.intp), np.empty(0, np.intp)
+    rows, cols, _ = _candidates(centres, np.asarray(reach, dtype=np.float64), points, len(points))
+    return rows.astype(np.intp), cols.astype(np.intp)
 
 
 def _candidates(truth_centres: np.ndarray, truth_gates: np.ndarray, det_centres: np.ndarray,

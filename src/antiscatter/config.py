@@ -171,6 +171,9 @@ class TrackConfig:
         exposure (its misses are expected); 0 = counted as ordinary misses (default; see Tracker).
     revive_frames: frames a deleted track may come back with its id when a detection appears
         where it would be (0 = off, default; better identities for counting, see Tracker).
+    merge_reach: a detection holding the predictions of two or more confirmed tracks within this
+        many times its radius is their particles merged in the image: it moves none of them and is
+        a miss for none (0 = off; default 0.7, see Tracker).
     """
 
     enabled: bool = False
@@ -181,6 +184,7 @@ class TrackConfig:
     keep_misses: int | None = None
     max_dark: int = 0
     revive_frames: int = 0
+    merge_reach: float = 0.7
 
     def __post_init__(self) -> None:
         if not math.isfinite(self.latency_ms):
@@ -195,6 +199,8 @@ class TrackConfig:
             raise ValueError(f"max_dark: got {self.max_dark}, allowed >= 0 (0 = off)")
         if self.revive_frames < 0:
             raise ValueError(f"revive_frames: got {self.revive_frames}, allowed >= 0 (0 = off)")
+        if not (math.isfinite(self.merge_reach) and self.merge_reach >= 0):
+            raise ValueError(f"merge_reach: got {self.merge_reach}, allowed a number >= 0 (0 = off)")
 
 
 STRATEGIES = ("none", "dim", "pulse", "flash", "coast")

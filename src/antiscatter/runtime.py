@@ -680,7 +680,7 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
     if tc.enabled:
         from .tracking import Tracker
         tracker = Tracker(confirm_hits=tc.confirm_hits, max_misses=tc.max_misses, keep_misses=tc.keep_misses,
-                          max_dark=tc.max_dark, revive_frames=tc.revive_frames,
+                          max_dark=tc.max_dark, revive_frames=tc.revive_frames, merge_reach=tc.merge_reach,
                           flow_holes=config.light.depth != "probe")  # probing: a new hole spans its line
     if tracker is None:
         timed.remove("Tracking Duration (s)")

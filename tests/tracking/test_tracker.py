@@ -357,3 +357,59 @@ def test_a_new_fast_particle_starts_with_its_neighbours_motion():
     assert later == born
     born, later = run(flow_neighbours=0)  # at rest, its first move is beyond its gate: born again
     assert later != born
+
+
+def _overtaking(tracker, frames=50, r=3.0):
+    """Particle a (1.5 px a frame) overtakes b (0.5 px a frame) 1 px beside it: for 15 frames the
+    detector sees one disc between them covering both.  Returns (ids of a, ids of b) in the frames
+    they are seen apart, the tracker's velocity of each at the end (px/s) and how many frames merged."""
+    t = np.arange(frames) * DT
+    a = np.column_stack([100 + 90 * t, np.full(frames, 300.0)])
+    b = np.column_stack([120 + 30 * t, np.full(frames, 301.0)])
+    ida, idb, merged = [], [], 0
+    for f in range(frames):
+        gap = float(np.hypot(*(a[f] - b[f])))
+        if gap < 2 * r + 2:  # discs and halos touch: one detection at the middle
+            detections = Detections([(a[f] + b[f]) / 2], [gap / 2 + r + 1])
+            merged += 1
+        else:
+            detections = Detections(np.stack([a[f], b[f]]), [r + 1, r + 1])
+        tracks = tracker.update(detections, f * DT)
+        if len(detections) == 2:
+            ida.append(int(tracks.detection_ids[0]))
+            idb.append(int(tracks.detection_ids[1]))
+    return ida, idb, merged
+
+
+def test_particles_merged_in_one_detection_keep_their_ids_and_motion():
+    tracker = Tracker()
+    ida, idb, merged = _overtaking(tracker)
+    assert merged == 15
+    assert set(ida) == {ida[0]} and set(idb) == {idb[0]} and ida[0] != idb[0]
+    speed = dict(zip(tracker.ids.tolist(), tracker.x[:, 2].tolist()))
+    assert speed[ida[0]] == pytest.approx(90, abs=5) and speed[idb[0]] == pytest.approx(30, abs=5)
+
+
+def test_without_merge_handling_the_overtaken_particle_loses_its_id():
+    ida, idb, _ = _overtaking(Tracker(merge_reach=0))
+    assert len(set(ida) | set(idb)) == 3  # one of them is born again after the merge
+
+
+def test_two_tracks_on_one_particle_are_no_merge():
+    # a duplicate track a fraction of a pixel from the first: the detection still moves the track it is
+    # given to (two tracks that close are one particle seen twice, not two particles merged)
+    tracker = Tracker(confirm_hits=1)
+    tracker.update(Detections([[100.0, 100.0], [100.3, 100.0]], [4.0, 4.0]), 0.0)
+    tracks = tracker.update(Detections([[102.0, 100.0]], [4.0]), DT)
+    row = np.flatnonzero(tracks.ids == tracks.detection_ids[0])[0]
+    assert tracks.centres[row, 0] == pytest.approx(102.0, abs=0.3)
+    tracker = Tracker(confirm_hits=1)  # 3 px apart, both inside the disc: merged, neither moved
+    tracker.update(Detections([[100.0, 100.0], [103.0, 100.0]], [4.0, 4.0]), 0.0)
+    tracks = tracker.update(Detections([[101.5, 100.0]], [4.0]), DT)
+    assert sorted(tracks.centres[:, 0].tolist()) == pytest.approx([100.0, 103.0])
+    assert (tracks.misses == 0).all()
+
+
+def test_merge_reach_must_not_be_negative():
+    with pytest.raises(ValueError, match="merge_reach: got -0.1, out of range"):
+        Tracker(merge_reach=-0.1)
