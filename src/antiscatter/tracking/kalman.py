@@ -140,7 +140,7 @@ class Tracker:
         assigned to takes its id.  Its centre lies between the particles, and taken as one of them it
         pulled that track off its path and gave it the other's velocity when they parted (then two
         identities swapped or one was lost).  0 = off.  Default 0.7.  Isolated-particle IDF1 (the
-        default detector, the catalogue's scenes): seed tank 0.844 -> 0.885, dense 0.855 -> 0.858,
+        default detector, the catalogue's scenes): seed tank 0.844 -> 0.883, dense 0.855 -> 0.858,
         survey 0.946 -> 0.949, snow 0.953 -> 0.954, sand 0.963, fullres 0.957 -> 0.956, mixed
         0.951 -> 0.949, textured 0.953 -> 0.949, bubbles 0.981 -> 0.969 (a near bubble seen as
         two detections some frames carries two confirmed tracks, which then stop following its
