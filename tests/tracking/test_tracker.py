@@ -362,7 +362,7 @@ def test_a_new_fast_particle_starts_with_its_neighbours_motion():
 def _overtaking(tracker, frames=50, r=3.0):
     """Particle a (1.5 px a frame) overtakes b (0.5 px a frame) 1 px beside it: for 15 frames the
     detector sees one disc between them covering both.  Returns (ids of a, ids of b) in the frames
-    they are seen apart, the tracker's velocity of each at the end (px/s) and how many frames merged."""
+    they are seen apart and how many frames merged."""
     t = np.arange(frames) * DT
     a = np.column_stack([100 + 90 * t, np.full(frames, 300.0)])
     b = np.column_stack([120 + 30 * t, np.full(frames, 301.0)])
