@@ -102,3 +102,15 @@ def test_crowded_gates_still_give_an_optimal_assignment():
     a, b = linear_sum_assignment(np.where(d <= 25.0, d, 1e6))
     assert len(m) == 40
     assert np.isclose(d[m[:, 0], m[:, 1]].sum(), d[a, b].sum())
+
+
+def test_bounds_keep_a_pair_out_unless_the_value_fits():
+    truth = np.array([[0.0, 0.0], [10.0, 0.0]])
+    dets = np.array([[1.0, 0.0], [10.5, 0.0]])
+    low, high = np.array([0.0, 0.0]), np.array([5.0, np.nan])
+    matches, free_truth, free_dets = match(truth, np.array([3.0, 3.0]), dets,
+                                           bounds=(low, high, np.array([9.0, 100.0])))
+    # the first detection's value is out of the first particle's bounds; a NaN bound checks nothing
+    assert matches.tolist() == [[1, 1]] and free_truth.tolist() == [0] and free_dets.tolist() == [0]
+    matches, _, _ = match(truth, np.array([3.0, 3.0]), dets, bounds=(low, high, np.array([np.nan, 100.0])))
+    assert matches.tolist() == [[0, 0], [1, 1]]  # a NaN value checks nothing either

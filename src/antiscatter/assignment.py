@@ -24,7 +24,8 @@ def gates(truth_radii: np.ndarray, *, min_gate: float = 2.0, scale: float = 1.0)
 
 
 def match(truth_centres: np.ndarray, truth_gates: np.ndarray, det_centres: np.ndarray, *,
-          neighbours: int = 8) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+          neighbours: int = 8, bounds: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Optimal one-to-one assignment on centre distance, gated per truth particle.
 
     Only pairs closer than the truth particle's gate may match; among those the
@@ -45,6 +46,9 @@ def match(truth_centres: np.ndarray, truth_gates: np.ndarray, det_centres: np.nd
     truth_centres : (T, 2) pixels.
     truth_gates : (T,) maximum matching distance per truth particle, pixels.
     det_centres : (D, 2) pixels.
+    bounds : (low (T,), high (T,), values (D,)), or None: a pair may match only when the
+        detection's value lies in the truth point's [low, high] as well (the tracker's check on
+        a particle's flux); a NaN value or bound checks nothing.
 
     Returns
     -------
@@ -58,7 +62,7 @@ def match(truth_centres: np.ndarray, truth_gates: np.ndarray, det_centres: np.nd
     if nt == 0 or nd == 0:
         return np.empty((0, 2), np.int64), np.arange(nt), np.arange(nd)
     truth_gates = np.asarray(truth_gates, dtype=np.float64)
-    rows, cols, dist = _candidates(truth_centres, truth_gates, det_centres, min(neighbours, nd))
+    rows, cols, dist = _candidates(truth_centres, truth_gates, det_centres, min(neighbours, nd), bounds)
     if len(rows) == 0:
         return np.empty((0, 2), np.int64), np.arange(nt), np.arange(nd)
     rows, cols = rows.astype(np.intp), cols.astype(np.int64)
@@ -115,9 +119,10 @@ def pairs_within(centres: np.ndarray, reach: np.ndarray, points: np.ndarray) -> 
 
 
 def _candidates(truth_centres: np.ndarray, truth_gates: np.ndarray, det_centres: np.ndarray,
-                neighbours: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                neighbours: int, bounds: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(rows, cols, distances) of the candidate pairs: for each truth point, its ``neighbours``
-    nearest detections within its gate.
+    nearest detections within its gate (and its ``bounds``, see :func:`match`).
 
     A sweep along x: the detections sorted by x, each truth point's slice of them within its gate
     found by binary search, and the distances of those pairs alone.  Before, every distance at
@@ -142,6 +147,10 @@ def _candidates(truth_centres: np.ndarray, truth_gates: np.ndarray, det_centres:
     cols = order[np.arange(total) + np.repeat(lo - (np.cumsum(counts) - counts), counts)]
     dist = np.hypot(x[rows] - det_centres[cols, 0], y[rows] - det_centres[cols, 1])
     ok = dist <= truth_gates[rows]
+    if bounds is not None:
+        low, high, values = bounds
+        value = values[cols]
+        ok &= ~((value < low[rows]) | (value > high[rows]))  # (comparisons with NaN are False)
     rows, cols, dist = rows[ok], cols[ok], dist[ok]
     if len(rows) and np.bincount(rows).max() > neighbours:  # only the nearest few of a crowded gate
         by_distance = np.lexsort((dist, rows))

@@ -174,6 +174,9 @@ class TrackConfig:
     merge_reach: a detection holding the predictions of two or more confirmed tracks within this
         many times its radius is their particles merged in the image: it moves none of them and is
         a miss for none (0 = off; default 0.7, see Tracker).
+    flux_ratio: a detection whose flux (the detector's score) is more than this many times a
+        track's last, or less than its last over this, is not that track's particle -- unless its
+        hole's light explains the change (0 = off; default 6; off where depth is probed, see Tracker).
     """
 
     enabled: bool = False
@@ -185,6 +188,7 @@ class TrackConfig:
     max_dark: int = 0
     revive_frames: int = 0
     merge_reach: float = 0.7
+    flux_ratio: float = 6.0
 
     def __post_init__(self) -> None:
         if not math.isfinite(self.latency_ms):
@@ -201,6 +205,8 @@ class TrackConfig:
             raise ValueError(f"revive_frames: got {self.revive_frames}, allowed >= 0 (0 = off)")
         if not (math.isfinite(self.merge_reach) and self.merge_reach >= 0):
             raise ValueError(f"merge_reach: got {self.merge_reach}, allowed a number >= 0 (0 = off)")
+        if not (math.isfinite(self.flux_ratio) and (self.flux_ratio == 0 or self.flux_ratio >= 1)):
+            raise ValueError(f"flux_ratio: got {self.flux_ratio}, allowed 0 (off) or a number >= 1")
 
 
 STRATEGIES = ("none", "dim", "pulse", "flash", "coast")

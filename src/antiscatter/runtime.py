@@ -681,7 +681,9 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
         from .tracking import Tracker
         tracker = Tracker(confirm_hits=tc.confirm_hits, max_misses=tc.max_misses, keep_misses=tc.keep_misses,
                           max_dark=tc.max_dark, revive_frames=tc.revive_frames, merge_reach=tc.merge_reach,
-                          flow_holes=config.light.depth != "probe")  # probing: a new hole spans its line
+                          # probing: a new hole spans its line, and a particle's light is not known
+                          flow_holes=config.light.depth != "probe",
+                          flux_ratio=tc.flux_ratio if config.light.depth != "probe" else 0.0)
     if tracker is None:
         timed.remove("Tracking Duration (s)")
     summary.durations = {c: RunningStats() for c in timed}

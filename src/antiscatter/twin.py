@@ -319,8 +319,11 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
     tracker = None
     if run.strategy == "coast" or run.predict or run.mapping == "probe":
         from .tracking import Tracker
-        # motion settings scale with the width; probing draws a new track's hole along its whole line
-        tracker = Tracker(frame_size=geometry.camera_size, flow_holes=run.mapping != "probe")
+        # motion settings scale with the width; probing draws a new track's hole along its whole line,
+        # and the light its probes give a particle is not known until their verdict (as run)
+        probing = run.mapping == "probe"
+        tracker = Tracker(frame_size=geometry.camera_size, flow_holes=not probing,
+                          **({"flux_ratio": 0.0} if probing else {}))
     # holes along epipolar segments: probed intervals, or the whole range when depth is unknown
     segments = None
     if run.mapping == "probe" or (run.mapping == "range" and geometry.baseline_m > 0):

@@ -413,3 +413,48 @@ def test_two_tracks_on_one_particle_are_no_merge():
 def test_merge_reach_must_not_be_negative():
     with pytest.raises(ValueError, match="merge_reach: got -0.1, out of range"):
         Tracker(merge_reach=-0.1)
+
+
+def _faint_then_bright(tracker):
+    """A faint particle (flux 50) seen once; the next frame it is under its own hole and not seen, and a
+    bright one (flux 5000) comes into the lamp 12 px away, inside the new track's gate.  Returns (the
+    faint one's id, the id the bright one is given)."""
+    first = tracker.update(Detections([[100.0, 100.0]], [3.0], [50.0]), 0.0)
+    faint = int(first.detection_ids[0])
+    second = tracker.update(Detections([[112.0, 100.0]], [6.0], [5000.0]), DT, unlit=np.array([faint]))
+    return faint, int(second.detection_ids[0])
+
+
+def test_a_far_brighter_detection_is_not_a_faint_tracks_particle():
+    # the twin's start-up: the faint track took the bright newcomer and flew off with its motion,
+    # and the newcomer, the brightest source of backscatter in view, went unconfirmed for frames
+    faint, bright = _faint_then_bright(Tracker())
+    assert bright != faint
+    faint, bright = _faint_then_bright(Tracker(flux_ratio=0))  # without the check: taken
+    assert bright == faint
+
+
+def test_a_particle_may_fade_under_its_own_hole_and_come_back_bright():
+    tracker = Tracker(confirm_hits=2)
+    ids = set()
+    # lit, lit, under its hole (dimmed 50 times), lit again: one particle moving 1 px a frame
+    for f, (flux, under) in enumerate([(1000.0, False), (1000.0, False), (20.0, True), (1000.0, False)]):
+        tracks = tracker.update(Detections([[100.0 + f, 100.0]], [4.0], [flux]), f * DT,
+                                unlit=tracker.ids.copy() if under else None)
+        ids.add(int(tracks.detection_ids[0]))
+    assert len(ids) == 1
+    # with no hole to explain it, a detection 50 times fainter where the particle should be is another
+    tracks = tracker.update(Detections([[104.0, 100.0]], [4.0], [20.0]), 4 * DT)
+    assert int(tracks.detection_ids[0]) not in ids
+
+
+def test_detections_without_a_flux_are_matched_by_position_alone():
+    tracker = Tracker()
+    tracker.update(Detections([[100.0, 100.0]], [3.0], [50.0]), 0.0)
+    tracks = tracker.update(Detections([[101.0, 100.0]], [3.0]), DT)  # scores NaN (the seed detector)
+    assert tracks.detection_ids[0] == tracker.ids[0] and len(tracker.ids) == 1
+
+
+def test_flux_ratio_below_one_is_rejected():
+    with pytest.raises(ValueError, match="flux_ratio: got 0.5, out of range"):
+        Tracker(flux_ratio=0.5)
