@@ -434,18 +434,28 @@ def test_a_far_brighter_detection_is_not_a_faint_tracks_particle():
     assert bright == faint
 
 
-def test_a_particle_may_fade_under_its_own_hole_and_come_back_bright():
+def _lit_lit_dimmed(last_flux):
+    """Ids a particle moving 1 px a frame is given: lit, lit, under its own hole (dimmed 50 times),
+    then lit again with ``last_flux`` (the first three frames' ids, the last frame's id)."""
     tracker = Tracker(confirm_hits=2)
     ids = set()
-    # lit, lit, under its hole (dimmed 50 times), lit again: one particle moving 1 px a frame
-    for f, (flux, under) in enumerate([(1000.0, False), (1000.0, False), (20.0, True), (1000.0, False)]):
+    for f, (flux, under) in enumerate([(1000.0, False), (1000.0, False), (20.0, True)]):
         tracks = tracker.update(Detections([[100.0 + f, 100.0]], [4.0], [flux]), f * DT,
                                 unlit=tracker.ids.copy() if under else None)
         ids.add(int(tracks.detection_ids[0]))
-    assert len(ids) == 1
+    tracks = tracker.update(Detections([[103.0, 100.0]], [4.0], [last_flux]), 3 * DT)
+    return ids, int(tracks.detection_ids[0]), tracker
+
+
+def test_a_particle_may_fade_under_its_own_hole_and_come_back_bright():
+    ids, last, tracker = _lit_lit_dimmed(1000.0)
+    assert ids == {last}
     # with no hole to explain it, a detection 50 times fainter where the particle should be is another
     tracks = tracker.update(Detections([[104.0, 100.0]], [4.0], [20.0]), 4 * DT)
-    assert int(tracks.detection_ids[0]) not in ids
+    assert int(tracks.detection_ids[0]) != last
+    # back lit far brighter than the least light a hole leaves (MIN_LEVEL) explains: another
+    ids, last, _ = _lit_lit_dimmed(20000.0)
+    assert last not in ids
 
 
 def test_detections_without_a_flux_are_matched_by_position_alone():
