@@ -295,8 +295,11 @@ class Tracker:
         spread = np.sqrt(np.maximum(pp[:, 0], pp[:, 1]) + self.measurement[0, 0]) if len(pp) else np.empty(0)
         return np.clip(self.gate_sigma * spread, self.min_gate, self.max_gate)
 
-    def _correct(self, t: np.ndarray, k: np.ndarray, detections: Detections) -> None:
-        """Kalman update of tracks ``t`` with detections ``k`` (index arrays)."""
+    def _correct(self, t: np.ndarray, k: np.ndarray, detections: Detections,
+                 under: np.ndarray | None = None) -> None:
+        """Kalman update of tracks ``t`` with detections ``k`` (index arrays), whose flux each
+        track keeps; ``under``: (N,) bool, the tracks whose own hole was on this exposure (None:
+        none)."""
         m_pos, m_rad = self.measurement[0, 0], self.measurement[2, 2]
         pp, pv, vv = self.pp[t], self.pv[t], self.vv[t]
         s_pos = pp + m_pos  # innovation variance per axis
@@ -313,6 +316,8 @@ class Tracker:
         x[:, 4] += k_r * (detections.radii[k] - x[:, 4])
         self.x[t] = x
         self.rr[t] = (1 - k_r) * rr
+        self.flux[t] = detections.scores[k]
+        self.flux_dark[t] = False if under is None else under[t]
         self._seen(t)
 
     def _seen(self, t: np.ndarray) -> None:
@@ -403,9 +408,7 @@ class Tracker:
             t, k = matches[:, 0], matches[:, 1]
             stale = t[lost[t]]
             moved = ~merged[t]  # in a merge, no detection moves a track: the merge, or a piece of it
-            self._correct(t[moved], k[moved], detections)
-            self.flux[t[moved]] = detections.scores[k[moved]]
-            self.flux_dark[t[moved]] = under[t[moved]]
+            self._correct(t[moved], k[moved], detections, under)
             self._seen(t[~moved])
             detection_ids[k] = self.ids[t]
             if len(stale):
@@ -418,9 +421,7 @@ class Tracker:
         if len(unmatched_tracks):
             unmatched_tracks = unmatched_tracks[~merged[unmatched_tracks]]  # hidden in a merge: no miss
             self.misses[unmatched_tracks] += 1
-            if unlit is not None and len(unlit):
-                expected = unmatched_tracks[np.isin(self.ids[unmatched_tracks], unlit)]
-                self.dark[expected] += 1
+            self.dark[unmatched_tracks[under[unmatched_tracks]]] += 1
         # delete: tentative tracks after tentative_misses (unproven: a false alarm darkened by its
         # own hole must not live on), confirmed ones after keep_misses not counting expected
         # misses -- up to max_dark of them
@@ -477,15 +478,17 @@ class Tracker:
         dozen lost ones among them)."""
         gates = self._gates(self.pp)
         scores = detections.scores
+
+        def bounds(rows, values):  # the flux check of tracks ``rows`` on detections of ``values``
+            return None if flux is None else (flux[0][rows], flux[1][rows], values)
+
         if not is_lost.any():
-            return match(self.x[:, :2], gates, detections.centres,
-                         bounds=None if flux is None else (flux[0], flux[1], scores))
+            return match(self.x[:, :2], gates, detections.centres, bounds=bounds(slice(None), scores))
         live, lost = np.flatnonzero(~is_lost), np.flatnonzero(is_lost)
         first, free_live, free_dets = match(self.x[live, :2], gates[live], detections.centres,
-                                            bounds=None if flux is None else (flux[0][live], flux[1][live], scores))
-        second, free_lost, free_dets2 = match(
-            self.x[lost, :2], gates[lost], detections.centres[free_dets],
-            bounds=None if flux is None else (flux[0][lost], flux[1][lost], scores[free_dets]))
+                                            bounds=bounds(live, scores))
+        second, free_lost, free_dets2 = match(self.x[lost, :2], gates[lost], detections.centres[free_dets],
+                                              bounds=bounds(lost, scores[free_dets]))
         matches = np.concatenate([np.column_stack([live[first[:, 0]], first[:, 1]]),
                                   np.column_stack([lost[second[:, 0]], free_dets[second[:, 1]]])]).astype(np.int64)
         return matches, np.sort(np.concatenate([live[free_live], lost[free_lost]])), free_dets[free_dets2]
@@ -565,7 +568,6 @@ class Tracker:
                 self.dark[rows] = 0
                 self.hits[rows] = 0  # back as new: its hole does not follow a velocity from before the gap
                 self._correct(rows, k, detections)
-                self.flux[rows], self.flux_dark[rows] = detections.scores[k], False
                 detection_ids[k] = self.ids[rows]
                 unmatched = np.setdiff1d(unmatched, k)
                 gone = np.zeros(len(dead["ids"]), bool)
