@@ -177,6 +177,10 @@ class TrackConfig:
     flux_ratio: a detection whose flux (the detector's score) is more than this many times a
         track's last, or less than its last over this, is not that track's particle -- unless its
         hole's light explains the change (0 = off; default 6; off where depth is probed, see Tracker).
+    far_bright: a particle seen once, at least this many times brighter than the frame's median
+        detection, may be found again anywhere within the widest gate when it and a detection of
+        alike flux are each other's only candidate there: a near particle crosses the view fast
+        (0 = off; default 6; off with flux_ratio, see Tracker).
     """
 
     enabled: bool = False
@@ -189,6 +193,7 @@ class TrackConfig:
     revive_frames: int = 0
     merge_reach: float = 0.7
     flux_ratio: float = 6.0
+    far_bright: float = 6.0
 
     def __post_init__(self) -> None:
         if not math.isfinite(self.latency_ms):
@@ -207,6 +212,8 @@ class TrackConfig:
             raise ValueError(f"merge_reach: got {self.merge_reach}, allowed a number >= 0 (0 = off)")
         if not (math.isfinite(self.flux_ratio) and (self.flux_ratio == 0 or self.flux_ratio >= 1)):
             raise ValueError(f"flux_ratio: got {self.flux_ratio}, allowed 0 (off) or a number >= 1")
+        if not (math.isfinite(self.far_bright) and (self.far_bright == 0 or self.far_bright >= 1)):
+            raise ValueError(f"far_bright: got {self.far_bright}, allowed 0 (off) or a number >= 1")
 
 
 STRATEGIES = ("none", "dim", "pulse", "flash", "coast")

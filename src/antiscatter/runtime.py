@@ -683,7 +683,8 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
                           max_dark=tc.max_dark, revive_frames=tc.revive_frames, merge_reach=tc.merge_reach,
                           # probing: a new hole spans its line, and a particle's light is not known
                           flow_holes=config.light.depth != "probe",
-                          flux_ratio=tc.flux_ratio if config.light.depth != "probe" else 0.0)
+                          flux_ratio=tc.flux_ratio if config.light.depth != "probe" else 0.0,
+                          far_bright=tc.far_bright)
     if tracker is None:
         timed.remove("Tracking Duration (s)")
     summary.durations = {c: RunningStats() for c in timed}

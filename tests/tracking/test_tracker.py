@@ -468,3 +468,59 @@ def test_detections_without_a_flux_are_matched_by_position_alone():
 def test_flux_ratio_below_one_is_rejected():
     with pytest.raises(ValueError, match="flux_ratio: got 0.5, out of range"):
         Tracker(flux_ratio=0.5)
+
+
+def _fast_near_particle(tracker, frames=6, bright=(4000.0,) * 6, step=30.0):
+    """Twenty faint particles (flux 50) drifting 0.5 px a frame, and from frame 2 on a bright one
+    (flux ``bright[f]``) crossing ``step`` px a frame -- beyond a new track's gate, as a near
+    particle does.  Returns the ids the bright one is given, frame by frame, and the last tracks."""
+    rng = np.random.default_rng(3)
+    faint = rng.uniform(50, 750, (20, 2))
+    ids, tracks = [], None
+    for f in range(frames + 2):
+        centres, radii, flux = faint + [0.5 * f, 0.0], [3.0] * 20, [50.0] * 20
+        if f >= 2:
+            centres = np.vstack([centres, [[100.0 + step * (f - 2), 300.0]]])
+            radii, flux = radii + [6.0], flux + [bright[f - 2]]
+        tracks = tracker.update(Detections(centres, radii, flux), f * DT)
+        if f >= 2:
+            ids.append(int(tracks.detection_ids[-1]))
+    return ids, tracks
+
+
+def test_a_bright_fast_particle_is_found_again_beyond_a_new_tracks_gate():
+    # the twin's near bubble crossing 28 px a frame among far, slow particles: born again in every
+    # frame, it never had its hole where it was
+    ids, tracks = _fast_near_particle(Tracker())
+    assert set(ids) == {ids[0]}
+    row = np.flatnonzero(tracks.ids == ids[0])[0]
+    assert tracks.confirmed[row] and tracks.velocities[row, 0] == pytest.approx(30.0 / DT, rel=0.05)
+    ids, _ = _fast_near_particle(Tracker(far_bright=0))
+    assert len(set(ids)) == len(ids)
+
+
+def test_only_alike_flux_is_found_again_far_away():
+    # twice as bright in its second frame (FAR_RATIO 1.5): another particle, not this one far away
+    ids, _ = _fast_near_particle(Tracker(), frames=2, bright=(4000.0, 8000.0))
+    assert ids[0] != ids[1]
+    # as faint as the rest: no brighter than the median, so no far search
+    ids, _ = _fast_near_particle(Tracker(), frames=2, bright=(50.0, 50.0))
+    assert ids[0] != ids[1]
+
+
+def test_no_far_match_where_two_bright_particles_could_be_either():
+    tracker = Tracker()
+    faint = [[600.0 + 10 * i, 500.0] for i in range(10)]
+    # two new bright tracks 40 px apart, and two bright detections 50 px on, each 51 px from one
+    # track and 58 px from the other: beyond both gates, within reach of both
+    first = tracker.update(Detections(faint + [[100.0, 100.0], [100.0, 140.0]], [3.0] * 10 + [6.0, 6.0],
+                                      [50.0] * 10 + [4000.0, 4200.0]), 0.0)
+    second = tracker.update(Detections(faint + [[150.0, 110.0], [150.0, 130.0]], [3.0] * 10 + [6.0, 6.0],
+                                       [50.0] * 10 + [4100.0, 4100.0]), DT)
+    born = set(first.detection_ids[-2:].tolist())
+    assert not born & set(second.detection_ids[-2:].tolist())  # each could be either: both born again
+
+
+def test_far_bright_below_one_is_rejected():
+    with pytest.raises(ValueError, match="far_bright: got 0.5, out of range"):
+        Tracker(far_bright=0.5)
