@@ -110,6 +110,22 @@ def test_a_track_found_after_its_hole_went_keeps_its_id_but_starts_its_motion_af
     assert tracks.confirmed[0] and tracks.velocities[0][0] > 250.0
 
 
+def test_a_track_found_again_where_its_motion_took_it_keeps_its_motion():
+    # a faint particle invisible under its own hole: its track coasts, is lost past max_misses, and
+    # the particle is found again right on its path -- the same particle, moving so
+    tracker = Tracker(max_misses=3)
+    velocity = np.array([300.0, 0.0])
+    for f in range(10):
+        tracks = tracker.update(Detections([np.array([100.0, 200.0]) + velocity * f * DT], [3.0]), f * DT)
+    first = int(tracks.ids[0])
+    for f in range(10, 16):
+        tracker.update(Detections.empty(), f * DT)
+    on_path = np.array([100.0, 200.0]) + velocity * 16 * DT + [1.0, 0.5]
+    tracks = tracker.update(Detections([on_path], [3.0]), 16 * DT)
+    assert tracks.detection_ids.tolist() == [first]
+    assert tracks.confirmed[0] and tracks.velocities[0][0] == pytest.approx(300.0, rel=0.05)
+
+
 def test_a_lost_track_only_takes_a_detection_no_track_with_a_hole_wants():
     tracker = Tracker(max_misses=3, position_noise=1.5)
     for f in range(8):  # two particles at rest, 4 px apart
