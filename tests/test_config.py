@@ -99,3 +99,11 @@ def test_parse_param_types():
         parse_param("speed=3", SeedParams, detector="seed")
     with pytest.raises(UsageError, match="expected KEY=VALUE"):
         parse_param("threshold", SeedParams, detector="seed")
+
+
+def test_rest_defaults_to_the_strategys_own():
+    from antiscatter.config import load_config
+
+    assert load_config(overrides={"light": {"strategy": "dim"}}).light.rest == 2
+    assert load_config(overrides={"light": {"strategy": "pulse"}}).light.rest == 1
+    assert load_config(overrides={"light": {"strategy": "dim", "rest": 1}}).light.rest == 1

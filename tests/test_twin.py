@@ -170,8 +170,10 @@ def test_twin_command_json(cli):
     # depth probing draws only the holes worth their light, and every hole beside it for comparison
     assert sorted(r["min_worth"] for r in runs if r["mapping"] == "probe") == [0.0] + [MIN_WORTH] * 4
     assert all(r["min_worth"] is None for r in runs if r["mapping"] != "probe")
-    # adaptive holes rest after each sighting, as run's; probing never does
-    assert {r["rest"] for r in runs if r["levels"] == "adaptive" and r["mapping"] != "probe"} == {1}
+    # adaptive holes rest after each sighting, as run's -- pulsed ones one frame, dim ones two (they
+    # leave their particles light the whole frame); probing never does
+    assert {(r["strategy"], r["rest"]) for r in runs if r["levels"] == "adaptive" and r["mapping"] != "probe"} == {
+        ("pulse", 1), ("dim", 2)}
     assert all(r["rest"] == 0 for r in runs if r["levels"] == "adaptive" and r["mapping"] == "probe")
     assert all(r["rest"] is None for r in runs if r["levels"] != "adaptive")
     assert all(r["latency_ms"] == 7 and 0 <= r["backscatter_removed"] <= 1 and 0 <= r["scene_light_kept"] <= 1
@@ -477,3 +479,15 @@ def test_a_fast_near_bubble_is_tracked_and_kept_dark(seed, monkeypatch):
     lost = run()
     assert found["backscatter_removed"] >= lost["backscatter_removed"] + 0.1
     assert found["scene_light_kept"] == pytest.approx(lost["scene_light_kept"], abs=0.005)
+
+
+def test_dim_holes_rest_two_frames_after_each_look_by_default():
+    # a dim hole leaves its particle its level for the whole frame: after each look it stays dark
+    # two frames (levels.DIM_REST), a pulsed one a frame
+    dim, pulse = (loop(strategy, dim_level=0.2, predict=True) for strategy in ("dim", "pulse"))
+    assert dim["rest"] == 2 and pulse["rest"] == 1
+    floor = round(0.02 * 255) / 255
+    series = [f["removed"] for f in dim["series"][12:]]
+    dark = [k for k, r in enumerate(series) if r == pytest.approx(1.0, abs=1e-6)]
+    assert len(dark) == 4 and np.diff(dark).tolist() == [3, 3, 3]  # a fully dark frame in every three
+    assert all(r == pytest.approx(1 - floor / 2, abs=1e-6) for k, r in enumerate(series) if k not in dark)

@@ -32,7 +32,7 @@ def _detector_help() -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .levels import LEVELS, REST
+    from .levels import DIM_REST, LEVELS, REST
     from .probe import MIN_WORTH
     from .pattern import GROW, GROW_FROM
 
@@ -102,8 +102,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "--dim-level for every hole")
     g.add_argument("--min-level", type=float, help="the least light an adaptive hole leaves, 0..1 (default 0.02)")
     g.add_argument("--rest", type=int, help="adaptive levels: frames a confirmed track's hole stays fully dark "
-                   "after each frame that found its particle, carried along its predicted path (default 1; "
-                   "0 = always dimmed; not while probing depth)")
+                   "after each frame that found its particle, carried along its predicted path (default 1 "
+                   "with pulsed holes, 2 with dim ones; 0 = always dimmed; not while probing depth)")
     g.add_argument("--min-worth", type=float, help="depth probing: draw a hole only where the share of the "
                    "backscatter it withholds is at least this many times the share of the scene light it takes "
                    f"(default {MIN_WORTH:g}; 0 = every hole)")
@@ -291,9 +291,9 @@ def build_parser() -> argparse.ArgumentParser:
     tw.add_argument("--min-worth", type=float, default=MIN_WORTH, help="depth probing: a hole is drawn only where "
                     "the share of the backscatter it withholds is at least this many times the share of the scene "
                     f"light it takes (default {MIN_WORTH:g}, as run; one probing run always draws every hole)")
-    tw.add_argument("--rest", type=int, default=REST, help="adaptive levels: frames a confirmed track's hole stays "
-                    f"fully dark after each frame that found its particle (default {REST}, as run; 0 = always "
-                    "dimmed; not while probing)")
+    tw.add_argument("--rest", type=int, help="adaptive levels: frames a confirmed track's hole stays "
+                    f"fully dark after each frame that found its particle (default {REST} with pulsed holes, "
+                    f"{DIM_REST} with dim ones, as run; 0 = always dimmed; not while probing)")
     tw.add_argument("--grow", type=float, default=GROW, help="holes grow in proportion to their size, as run --grow "
                     f"(default {GROW:g}, as run; 0 = off)")
     tw.add_argument("--grow-from", type=float, default=GROW_FROM, help=f"as run --grow-from (default {GROW_FROM:g})")
@@ -704,7 +704,7 @@ def _twin(args: argparse.Namespace) -> int:
             raise UsageError(f"--{key.replace('_', '-')} {getattr(args, key)}: allowed 0..1")
     if not (math.isfinite(args.min_worth) and args.min_worth >= 0):
         raise UsageError(f"--min-worth {args.min_worth}: allowed a number >= 0 (0 = every hole drawn)")
-    if args.rest < 0:
+    if args.rest is not None and args.rest < 0:
         raise UsageError(f"--rest {args.rest}: allowed a whole number of frames >= 0")
     for key in ("projector_aperture_mm", "projector_focus_m", "grow", "grow_from"):
         value = getattr(args, key)

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from .errors import UsageError
-from .levels import LEVELS, MIN_LEVEL, REST
+from .levels import LEVELS, MIN_LEVEL, rest_for
 from .probe import MIN_WORTH
 from .pattern import GROW, GROW_FROM
 
@@ -274,8 +274,8 @@ class LightConfig:
     min_level: the least light an adaptive hole leaves its particle, 0..1 (capped at ``dim_level``).
     rest: adaptive levels: frames a confirmed track's hole is left fully dark after each frame that
         found its particle, the tracker carrying it along its predicted path, before it is dimmed
-        and looked at again (default 1; 0 = always dimmed; not while probing depth; see
-        :mod:`antiscatter.levels`).
+        and looked at again (unset: 1 with pulsed holes, 2 with dim ones, ``rest_for``; 0 = always
+        dimmed; not while probing depth; see :mod:`antiscatter.levels`).
     min_worth: probe: draw a hole only where the share of the frame's backscatter it withholds is
         at least this many times the share of the projector's field it darkens (0 = every hole;
         see :attr:`antiscatter.probe.DepthProbe.min_worth`).
@@ -290,7 +290,7 @@ class LightConfig:
     far_m: float = 3.0
     levels: str = "auto"
     min_level: float = MIN_LEVEL
-    rest: int = REST
+    rest: int | None = None
     min_worth: float = MIN_WORTH
 
     def __post_init__(self) -> None:
@@ -306,7 +306,7 @@ class LightConfig:
             value = getattr(self, key)
             if not (math.isfinite(value) and 0 <= value <= 1):
                 raise ValueError(f"{key}: got {value}, allowed a number 0..1")
-        if isinstance(self.rest, bool) or not isinstance(self.rest, int) or self.rest < 0:
+        if self.rest is not None and (isinstance(self.rest, bool) or not isinstance(self.rest, int) or self.rest < 0):
             raise ValueError(f"rest: got {self.rest!r}, allowed a whole number of frames >= 0")
         if not (math.isfinite(self.min_worth) and self.min_worth >= 0):
             raise ValueError(f"min_worth: got {self.min_worth}, allowed a number >= 0 (0 = every hole drawn)")
@@ -518,6 +518,8 @@ def load_config(path: str | Path | None = None, overrides: dict[str, dict[str, A
         probe = (light.strategy in ("dim", "pulse") and sections["run"].mode == "single"
                  and _has_baseline(sections["pattern"].calibration))
         light = dataclasses.replace(light, depth="probe" if probe else "fixed")
+    if light.rest is None:  # the strategy's own
+        light = dataclasses.replace(light, rest=rest_for(light.strategy))
     if light.levels == "auto":  # only where the camera sees the light
         light = dataclasses.replace(light, levels="adaptive" if camera else "fixed")
     if light.compensate is None:  # only with a real mapping: a guessed one would put the light map wrong

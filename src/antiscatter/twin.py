@@ -53,7 +53,7 @@ import numpy as np
 from .detection import make_detector
 from .detections import Detections
 from .errors import UsageError
-from .levels import LEVELS, REST, HoleLevels
+from .levels import LEVELS, HoleLevels, rest_for
 from .pattern import GROW, GROW_FROM, GROW_REFERENCE_WIDTH, camera_light, grow_holes, render_pattern, scale_mapping
 from .simulate import make_scene
 from .probe import MIN_WORTH, DepthProbe, Intervals
@@ -206,7 +206,7 @@ class TwinRun:
     margin_px: float = 0.0
     levels: str = "adaptive"
     min_worth: float = MIN_WORTH
-    rest: int = REST
+    rest: int | None = None  # None: the strategy's own (levels.rest_for), as run
     grow: float = GROW
     grow_from: float = GROW_FROM
 
@@ -331,7 +331,8 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                               near_m=geometry.near_m, far_m=geometry.far_m, dim_level=run.dim_level,
                               projector_size=geometry.projector_size, min_worth=run.min_worth)
     probe = segments if run.mapping == "probe" else None
-    levels = (HoleLevels(run.dim_level, rest=run.rest if probe is None else 0)  # probing reads no rest
+    rest = rest_for(run.strategy) if run.rest is None else run.rest
+    levels = (HoleLevels(run.dim_level, rest=rest if probe is None else 0)  # probing reads no rest
               if run.levels == "adaptive" and run.strategy in ("dim", "pulse") and tracker is not None else None)
     shown_probes: Mapping = {}  # the intervals the pattern on during the last exposure gave each track
     shown_ids = None  # the tracks whose holes were on during the last exposure
