@@ -12,8 +12,8 @@ of itself a frame (a noisy flux does not black a hole out at once) and never bel
 a particle missed under its own hole gets twice its level back, and that level becomes the
 least it is given from then on (a level it was lost at is not tried again).
 
-A confirmed track just seen also rests (``rest`` frames, default 1 with ``run``): its hole is
-left fully dark through the next exposure instead of dimmed, the camera cannot see the particle
+A confirmed track just seen also rests (``rest`` frames; with ``run`` 1 for pulsed holes, 2 for
+dim ones, :func:`rest_for`): its hole is left fully dark through the next exposure instead of dimmed, the camera cannot see the particle
 then, and the tracker carries its hole along the predicted path (an expected miss: it neither
 raises the level nor counts against the track); the exposure after, it is dimmed and looked at
 again.  Between looks a particle sends back none of the light a dim hole leaves it.  In the twin
