@@ -13,10 +13,10 @@ a particle missed under its own hole gets twice its level back, and that level b
 least it is given from then on (a level it was lost at is not tried again).
 
 A confirmed track just seen also rests (``rest`` frames; with ``run`` 1 for pulsed holes, 2 for
-dim ones, :func:`rest_for`): its hole is left fully dark through the next exposure instead of dimmed, the camera cannot see the particle
-then, and the tracker carries its hole along the predicted path (an expected miss: it neither
-raises the level nor counts against the track); the exposure after, it is dimmed and looked at
-again.  Between looks a particle sends back none of the light a dim hole leaves it.  In the twin
+dim ones, :func:`rest_for`): its hole is left fully dark through the next exposure instead of
+dimmed, the camera cannot see the particle then, and the tracker carries its hole along the
+predicted path (an expected miss: it neither raises the level nor counts against the track); the
+exposure after, it is dimmed and looked at again.  Between looks a particle sends back none of the light a dim hole leaves it.  In the twin
 (co-located, 5 ms, prediction, scenes 1-6 each) dim holes removed 0.893 -> 0.899 (mixed; scenes
 7-18 0.871 -> 0.886, at 20 ms 0.874 -> 0.888), textured 0.872 -> 0.885, survey 0.842 -> 0.865,
 dense 0.805 -> 0.821, sand 0.776 -> 0.795, snow 0.922 -> 0.938, bubbles 0.932 -> 0.934, keeping

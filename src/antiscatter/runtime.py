@@ -26,7 +26,7 @@ from .config import Config, parse_size
 from .detection import Detector, check_frame_size, make_detector
 from .detections import Detections
 from .errors import UsageError, check_output_path
-from .levels import HoleLevels, rest_for
+from .levels import HoleLevels
 from .outputs import LightOutput, open_output
 from .pattern import camera_light, grow_holes, render_pattern, scale_mapping
 from .probe import Intervals
@@ -353,8 +353,7 @@ class _Pipeline:
         self.exposing = self.flash_image is not None or self.pulse_level is not None
         # each hole's own light (dim, or pulse while the camera exposes): tracked, not probed
         self.levels = (HoleLevels(light.dim_level, floor=min(light.min_level, light.dim_level),
-                                  rest=(rest_for(light.strategy) if light.rest is None else light.rest)
-                                  if self.probe is None else 0)
+                                  rest=light.rest if self.probe is None else 0)
                        if light.levels == "adaptive" and light.strategy in ("dim", "pulse")
                        and tracker is not None else None)
         self.full_image = np.full((height, width), 255, np.uint8)

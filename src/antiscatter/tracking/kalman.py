@@ -110,8 +110,8 @@ class Tracker:
         mixed 0.9219 -> 0.9238, snow +0.0022, survey 0.9015 -> 0.9051, sand 0.8459 -> 0.8504;
         scene light kept 0.0005-0.0009 less (the found tracks keep their holes); at 12 cm with
         probing +0.005 and -0.005 removed over seeds 1-6 and 7-12 (1 / 3 px: mixed 0.9329 /
-        0.9336).  Isolated IDF1 the same to 0.0004.  Default None: ``KEEP_MISSES`` (12), or ``max_misses`` if
-        that is more.  Lost tracks take only the detections that the tracks with a hole leave
+        0.9336).  Isolated IDF1 the same to 0.0004.  Default None: ``KEEP_MISSES`` (12), or
+        ``max_misses`` if that is more.  Lost tracks take only the detections that the tracks with a hole leave
         (:meth:`_associate`).  Against 5 (= max_misses): isolated-particle IDF1 bubbles 0.954 ->
         0.973, snow 0.901 -> 0.918, sand 0.849 -> 0.875, mixed 0.876 -> 0.905, textured 0.908 ->
         0.920, fullres 0.909 -> 0.910, dense 0.702 -> 0.701, seed 0.782 -> 0.773; in the twin
@@ -203,9 +203,9 @@ class Tracker:
         other's only candidate there with a flux within ``FAR_RATIO`` (1.5) of its own (a
         particle born again frame after frame leaves tentative tracks behind it, each as bright:
         only the newest one is looked at -- the older ones made every pairing ambiguous and the
-        search found nothing: in a twin test scene (seeds 1 and 2) 0.30 / 0.28 removed against 0.46 / 0.45 now;
-        the catalogue's twin and IDF1 figures within 0.001).  A
-        near particle is bright (its light goes as the fourth power of its nearness) and crosses
+        search found nothing: in a twin test scene, seeds 1 and 2, 0.30 / 0.28 removed against
+        0.46 / 0.45 now; the catalogue's twin and IDF1 figures within 0.001).  A near particle is
+        bright (its light goes as the fourth power of its nearness) and crosses
         the image fast (as its nearness); among far, slow particles the neighbours' flow gives it
         their motion, and one moving farther in a frame than a new track's gate (about 27 px at 800
         px wide) was born again in every frame and never had a hole where it was: in the twin
@@ -453,16 +453,17 @@ class Tracker:
         if self.far_bright and self.flux_ratio and len(unmatched_tracks) and len(unmatched_dets):
             far = self._far(detections, unmatched_tracks, unmatched_dets)
             if len(far):
-                matches = np.concatenate([matches.reshape(-1, 2), far])
+                matches = np.concatenate([matches, far])
                 unmatched_tracks = np.setdiff1d(unmatched_tracks, far[:, 0], assume_unique=True)
                 unmatched_dets = np.setdiff1d(unmatched_dets, far[:, 1], assume_unique=True)
         detection_ids = np.full(d, -1, np.int64)
         merged = self._merged(detections, lost, matches)
         if len(matches):
             t, k = matches[:, 0], matches[:, 1]
-            stale = t[lost[t]]
+            found_again = lost[t]
+            stale = t[found_again]
             if len(stale):  # (but one found where its motion took it is the same particle, moving so)
-                off = np.hypot(*(self.x[stale, :2] - detections.centres[k[lost[t]]]).T)
+                off = np.hypot(*(self.x[stale, :2] - detections.centres[k[found_again]]).T)
                 stale = stale[off > REFOUND * self.scale]
             moved = ~merged[t]  # in a merge, no detection moves a track: the merge, or a piece of it
             self._correct(t[moved], k[moved], detections, under)
@@ -557,8 +558,10 @@ class Tracker:
         # seen once, in the last frame: a particle born again in every frame leaves a trail of such
         # tracks, and only the newest is where its next sighting is a frame's move away
         t = tracks[(self.hits[tracks] == 1) & (self.misses[tracks] == 0)]
+        if len(t) == 0:
+            return none
         scores = detections.scores
-        known = scores[np.isfinite(scores)] if len(t) else scores[:0]
+        known = scores[np.isfinite(scores)]
         if len(known) == 0:
             return none
         median = np.partition(known, len(known) // 2)[len(known) // 2]  # (np.median: 7x the time)
