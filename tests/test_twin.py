@@ -290,6 +290,33 @@ def test_scoreboard_twin_table_has_every_run_at_both_baselines(monkeypatch):
     assert any(r["run"] == "default, range, flash, predict" for r in rows if r["baseline_m"] == 0.12)
 
 
+def test_scoreboard_long_table(monkeypatch):
+    import dataclasses
+
+    import antiscatter.twin as twin
+    from antiscatter.evaluate.report import LONG_RUNS, _long_rows
+
+    real, seen = twin.simulate_loop, []
+
+    def small(run, **kw):
+        seen.append((run.mapping, run.strategy, run.predict, kw["geometry"].baseline_m, kw["latency_ms"],
+                     kw["frames"], kw["seed"]))
+        return real(run, **{**kw, "geometry": dataclasses.replace(kw["geometry"], camera_size=(160, 120))})
+
+    monkeypatch.setattr(twin, "simulate_loop", small)
+    rows = _long_rows(3, lambda s: None, seeds=2, workers=1)
+    assert [(r["baseline_m"], r["latency_ms"]) for r in rows] == [(b, lat) for b, lat, *_ in LONG_RUNS]
+    assert [r["run"] for r in rows] == ["default, calibrated, dim, predict", "default, calibrated, pulse, predict",
+                                        "default, probe, dim, predict", "default, probe, pulse, predict",
+                                        "default, probe, pulse", "default, probe, pulse, predict"]
+    # every loop run as long as asked, over each of the scenes, and each row the mean of its own two
+    assert {s[5] for s in seen} == {3} and [s[6] for s in seen] == [1, 2] * len(LONG_RUNS)
+    assert seen[-1][:5] == ("probe", "pulse", True, 0.12, 20.0)
+    here = [small(twin.TwinRun("contrast", "probe", "pulse", True), geometry=TwinGeometry(baseline_m=0.12),
+                  frames=3, latency_ms=20.0, seed=seed) for seed in (1, 2)]
+    assert rows[-1]["backscatter_removed"] == pytest.approx(np.mean([o["backscatter_removed"] for o in here]))
+
+
 def test_scoreboard_lens_table(monkeypatch):
     import dataclasses
 

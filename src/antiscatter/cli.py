@@ -208,6 +208,10 @@ def build_parser() -> argparse.ArgumentParser:
                     "scoreboard's twin table (0 = leave it out; default 60)")
     ev.add_argument("--twin-seeds", type=int, default=3, help="scenes (seeds 1..N) the twin table averages "
                     "over (default 3)")
+    ev.add_argument("--twin-long-frames", type=int, default=300, help="frames per run of the twin's long-run "
+                    "table (the headline loops; 0 = leave it out; default 300, 5 s)")
+    ev.add_argument("--twin-long-seeds", type=int, default=6, help="scenes (seeds 1..N) the long-run table "
+                    "averages over (default 6)")
     ev.add_argument("--bench-frames", type=int, default=100, help="frames per size for the scoreboard's "
                     "bench table (0 = leave it out; default 100)")
     ev.add_argument("--detector", default=None, help="detector to run (default: the default detector); "
@@ -417,6 +421,10 @@ def _evaluate(args: argparse.Namespace) -> int:
             raise UsageError(f"--twin-frames {args.twin_frames}: allowed >= 0 (0 leaves the table out)")
         if args.twin_seeds < 1:
             raise UsageError(f"--twin-seeds {args.twin_seeds}: allowed >= 1")
+        if args.twin_long_frames < 0:
+            raise UsageError(f"--twin-long-frames {args.twin_long_frames}: allowed >= 0 (0 leaves the table out)")
+        if args.twin_long_seeds < 1:
+            raise UsageError(f"--twin-long-seeds {args.twin_long_seeds}: allowed >= 1")
         bench_results = None
         if args.bench_frames:  # BGR frames (files, the simulator, webcams) and the Pi camera's Y plane
             from .bench import bench
@@ -424,7 +432,8 @@ def _evaluate(args: argparse.Namespace) -> int:
         markdown, data = scoreboard(scenarios=scenarios, catalogue_version=version, detectors=detectors,
                                     real_pairs=real, matching=m, bench_results=bench_results,
                                     frames_limit=args.frames, log=lambda t: print(t, file=sys.stderr),
-                                    twin_frames=args.twin_frames, twin_seeds=args.twin_seeds)
+                                    twin_frames=args.twin_frames, twin_seeds=args.twin_seeds,
+                                    twin_long_frames=args.twin_long_frames, twin_long_seeds=args.twin_long_seeds)
         report = Path(args.report)
         report.parent.mkdir(parents=True, exist_ok=True)
         report.write_text(markdown)

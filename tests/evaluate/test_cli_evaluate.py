@@ -335,6 +335,11 @@ def test_scoreboard_end_to_end_on_a_tiny_catalogue(tmp_path, cli):
     bad = cli("evaluate", "--catalogue", "--catalogue-file", str(catalogue), "--data", str(tmp_path / "data"),
               "--report", str(report), "--bench-frames", "0", "--twin-seeds", "0")
     assert bad.code == 2 and "--twin-seeds 0: allowed >= 1" in bad.err
+    for flag, value, message in (("--twin-long-frames", "-1", "--twin-long-frames -1: allowed >= 0"),
+                                 ("--twin-long-seeds", "0", "--twin-long-seeds 0: allowed >= 1")):
+        bad = cli("evaluate", "--catalogue", "--catalogue-file", str(catalogue), "--data", str(tmp_path / "data"),
+                  "--report", str(report), "--bench-frames", "0", flag, value)
+        assert bad.code == 2 and message in bad.err
 
 
 @pytest.mark.parametrize("args, message", [

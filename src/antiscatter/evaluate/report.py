@@ -115,12 +115,15 @@ def _table(rows: list[dict[str, Any]], columns: list[tuple[str, str, str]]) -> l
 def scoreboard(*, scenarios: dict[str, Any], catalogue_version: int, detectors: list[str],
                real_pairs: list[tuple[str, Path, Path]], matching: Any, bench_results: list[Any] | None,
                frames_limit: int | None = None, log: Callable[[str], None] = lambda s: None,
-               tracking: bool = True, twin_frames: int = 0, twin_seeds: int = 3) -> tuple[str, dict]:
+               tracking: bool = True, twin_frames: int = 0, twin_seeds: int = 3,
+               twin_long_frames: int = 0, twin_long_seeds: int = 6) -> tuple[str, dict]:
     """Run every detector on every scenario and real pair; return (markdown, data).
 
     tracking: also the tracker's figures (default detector) on every scenario;
     twin_frames: also the closed-loop twin's table (0 = leave it out), each figure the mean over
-    ``twin_seeds`` scenes (seeds 1..twin_seeds) with the range of backscatter removed.
+    ``twin_seeds`` scenes (seeds 1..twin_seeds) with the range of backscatter removed;
+    twin_long_frames: with it, the headline loops run that long (0 = leave them out) over
+    ``twin_long_seeds`` scenes.
     """
     from .runs import evaluate_pairs, evaluate_scenario
 
@@ -218,6 +221,18 @@ def scoreboard(*, scenarios: dict[str, Any], catalogue_version: int, detectors: 
         md += _table(rows, [("baseline_m", "baseline (m)", "{:g}"), ("run", "system", ""),
                             ("lens", "projector", ""), ("grow", "grow", "{:g}"), *_TWIN_FIGURES])
         data["twin_lens"] = rows
+        if twin_long_frames:
+            md += ["", "### Long runs", "",
+                   f"The headline loops over {twin_long_frames} frames ({twin_long_frames / 60:g} s) each, the mean "
+                   f"over {twin_long_seeds} scenes (seeds 1-{twin_long_seeds}): a lamp runs for hours, and in a "
+                   f"{twin_frames}-frame run the start-up (the first frame lit in full before any pattern is "
+                   "ready, the detector's warm-up, the first tracks' confirmation) is a large share of the "
+                   "light. \"Steady\" is from frame "
+                   f"{steady_from(twin_long_frames)} on, as above.", ""]
+            rows = _long_rows(twin_long_frames, log, seeds=twin_long_seeds)
+            md += _table(rows, [("baseline_m", "baseline (m)", "{:g}"), ("latency_ms", "latency (ms)", "{:g}"),
+                                ("run", "system", ""), *_TWIN_FIGURES])
+            data["twin_long"] = rows
     return "\n".join(md) + "\n", data
 
 
@@ -257,6 +272,29 @@ def _twin_rows(frames: int, log: Callable[[str], None], *, seeds: int = 3,
     jobs = [(run, baseline, latency, seed, frames, 0.0, 0.0)
             for baseline in (0.0, 0.12) for latency in (5.0, 10.0, 20.0)
             for run in default_runs(baseline) for seed in range(1, seeds + 1)]
+    rows = []
+    for job, group in _twin_groups(jobs, seeds, log, workers):
+        run, baseline, latency = job[:3]
+        rows.append({"baseline_m": baseline, "latency_ms": latency, "run": _run_name(run, group[0]),
+                     **_group_figures(group)})
+    return rows
+
+
+#: the long-run table's loops: (baseline m, latency ms, run's mapping, strategy, predict) -- the
+#: co-located goal's strategies, the 12 cm goal's, and the prediction's gain at 20 ms
+LONG_RUNS = ((0.0, 5.0, "calibrated", "dim", True), (0.0, 5.0, "calibrated", "pulse", True),
+             (0.12, 5.0, "probe", "dim", True), (0.12, 5.0, "probe", "pulse", True),
+             (0.12, 20.0, "probe", "pulse", False), (0.12, 20.0, "probe", "pulse", True))
+
+
+def _long_rows(frames: int, log: Callable[[str], None], *, seeds: int = 6,
+               workers: int | None = None) -> list[dict[str, Any]]:
+    """The long-run table's rows: each of ``LONG_RUNS`` over ``frames`` frames, the mean over
+    ``seeds`` scenes."""
+    from ..twin import TwinRun
+
+    jobs = [(TwinRun("contrast", mapping, strategy, predict), baseline, latency, seed, frames, 0.0, 0.0)
+            for baseline, latency, mapping, strategy, predict in LONG_RUNS for seed in range(1, seeds + 1)]
     rows = []
     for job, group in _twin_groups(jobs, seeds, log, workers):
         run, baseline, latency = job[:3]
