@@ -32,6 +32,7 @@ from .pattern import camera_light, grow_holes, render_pattern, scale_mapping
 from .probe import Intervals
 from .sources import FrameSource, open_source, parse_crop
 from .stats import RunningStats
+from .tracking import PREDICT_AHEAD
 
 __all__ = ["REPORT_COLUMNS", "metrics_columns", "time_stages", "finish_stages", "Pacer", "RunSummary", "run",
            "set_niceness", "StopFlag", "LatestSlot", "apply_process_controls", "MODES"]
@@ -289,6 +290,7 @@ class _Record:
     hole_ids: Any = None  # the track ids of this pattern's holes
     intervals: Mapping | None = None  # depth probing with pulse: each track's whole remaining interval
     exposure: Any = None  # pulse with probing: the pattern for the next exposure (probe halves lifted)
+    exposure_holes: Any = None  # ... its holes (Detections), where the particles will be during it
     rested_ids: Any = None  # the track ids of this pattern's holes left fully dark (HoleLevels.rest)
     learned: threading.Event | None = None  # the detector's deferred stages are done (None: none pending)
 
@@ -405,7 +407,7 @@ class _Pipeline:
         else:
             detections = found
         t_processed = t1 + sum(stage_ns)
-        holes, track_ns, track_ids, probes, intervals = detections, 0, None, {}, None
+        holes, track_ns, track_ids, probes, intervals, exposure_holes = detections, 0, None, {}, None, None
         if self.tracker is not None:
             t_track = clock()
             captured = (frame.timestamp_ns / 1e9 if self.frame_interval is None
@@ -413,15 +415,17 @@ class _Pipeline:
             tracks = self.tracker.update(detections, captured, unlit=self.unlit_ids)
             track_ids = tracks.detection_ids
             prediction = self.tracker.snapshot()
-            if tc.predict:
-                latency = tc.latency_ms / 1e3 if tc.latency_ms >= 0 else self.latency_estimate
-                holes = prediction.holes(captured + latency)
-            else:
-                holes = prediction.holes(captured)
             if self.last_capture is not None and captured > self.last_capture:
                 period = captured - self.last_capture
                 self.frame_period = period if self.frame_period is None else 0.9 * self.frame_period + 0.1 * period
             self.last_capture = captured
+            if tc.predict:
+                latency = tc.latency_ms / 1e3 if tc.latency_ms >= 0 else self.latency_estimate
+                # the pattern stays on until the next one, a frame period later: each hole where its
+                # particle is halfway through that time (PREDICT_AHEAD), not where it is when it goes on
+                holes = prediction.holes(captured + latency + PREDICT_AHEAD * (self.frame_period or 0.0))
+            else:
+                holes = prediction.holes(captured)
             if self.frame_period is not None and self.compensate:
                 # the camera sees our holes (and no flash): where the tracked particles should be in
                 # the next frame, faint light is them, dimmed under their holes (open loop this only
@@ -436,13 +440,15 @@ class _Pipeline:
                 probes, covers = self.probe.plan(holes)
                 if self.pulse_level is not None:
                     intervals = covers
+                    if tc.predict:  # the halves the next exposure judges: where the particles will be then
+                        exposure_holes = prediction.holes(captured + (self.frame_period or 0.0))
             if self.levels is not None:  # how bright each came back under its own hole (or probe: its verdict)
                 self.levels.update(detections, track_ids, self.unlit_ids if self.probe is None else self.probe.dimmed,
                                    tracks.ids, tracks.ids[tracks.confirmed], rested=self.rested_ids)
             track_ns = clock() - t_track
             t_processed = clock()
         return _Record(frame, t0, t1, detections, stage_ns, track_ns, track_ids, holes, t_processed, 0, probes,
-                       intervals=intervals, learned=learned)
+                       intervals=intervals, exposure_holes=exposure_holes, learned=learned)
 
     def learn(self, rec: _Record) -> None:
         """Run the detector's deferred stages for ``rec`` (its learning for the next frames), timed
@@ -478,9 +484,10 @@ class _Pipeline:
                                             hole=grey if grey is not None and rec.intervals is None
                                             else self.hole_level, given_only=True)
             if rec.intervals is not None:
-                rec.exposure = self.probe.render(holes, rec.probes, size=self.projector_size, margin=margin,
-                                                 out=self.exposure_buffer,
-                                                 hole=self.pulse_level if grey is None else grey, given_only=True)
+                exposed = holes if rec.exposure_holes is None else rec.exposure_holes
+                rec.exposure = self.probe.render(exposed, rec.probes, size=self.projector_size, margin=margin,
+                                                 out=self.exposure_buffer, hole=self.pulse_level if grey is None
+                                                 else self.levels.grey(exposed.track_ids), given_only=True)
         else:
             holes = grown(rec.pattern)
             rec.hole_ids = holes.track_ids

@@ -43,6 +43,7 @@ the whole interval that may hold the particle dark).
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 from typing import Any, Mapping
@@ -57,7 +58,7 @@ from .levels import LEVELS, HoleLevels, rest_for
 from .pattern import GROW, GROW_FROM, GROW_REFERENCE_WIDTH, camera_light, grow_holes, render_pattern, scale_mapping
 from .simulate import make_scene
 from .probe import MIN_WORTH, DepthProbe, Intervals
-from .tracking import Prediction
+from .tracking import PREDICT_AHEAD, Prediction
 
 
 @dataclass(frozen=True)
@@ -76,6 +77,9 @@ class _Probing:
     prediction: Prediction
     probes: Mapping  # shown while the camera exposes
     between: Mapping  # shown between exposures: the probes (dim), each whole interval (pulse)
+    at: float  # the time its holes are drawn for
+    exposure_at: float  # ... and those the next exposure is taken under (pulse: the probes' halves)
+    levels: HoleLevels | None  # each hole's light as it was when the pattern was made
 
 __all__ = ["TwinGeometry", "TwinRun", "simulate_loop", "default_runs", "backscatter_weight", "STRATEGIES", "MAPPINGS"]
 
@@ -200,7 +204,6 @@ class TwinRun:
     mapping: str = "calibrated"
     strategy: str = "none"
     predict: bool = False
-    per_refresh: bool = True
     dim_level: float = 0.1
     flash_level: float = 0.25
     margin_px: float = 0.0
@@ -351,6 +354,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
     camera_from_far = np.linalg.inv(far_mapping)
     sub_per_frame = int(round(geometry.projector_hz / geometry.camera_hz))
     sub_s = 1.0 / geometry.projector_hz
+    frame_s = 1.0 / geometry.camera_hz
     latency = latency_ms / 1e3
     full = np.ones((ph, pw), np.float32)
     flash = np.full((ph, pw), run.flash_level, np.float32)
@@ -398,13 +402,18 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
             if levels is not None:  # how bright each came back under its own hole (or probe: its verdict)
                 levels.update(found, tracks.detection_ids, shown_ids if probe is None else probe.dimmed,
                               tracks.ids, tracks.ids[tracks.confirmed], rested=shown_rested)
+            # as run: one pattern a frame, on until the next; predicted, its holes are where the
+            # particles will be halfway through that time (``PREDICT_AHEAD``)
+            at = on_at + PREDICT_AHEAD * frame_s if run.predict else t0 + geometry.exposure_s / 2
             if probe is not None:
                 snapshot = tracker.snapshot()
                 probes, covers = probe.plan(snapshot.holes(t0))
-                return on_at, _Probing(snapshot, probes, covers if run.strategy == "pulse" else probes)
-            if run.predict and run.per_refresh:
-                return on_at, tracker.snapshot()
-            holes = tracker.holes(on_at + sub_s / 2 if run.predict else t0 + geometry.exposure_s / 2)
+                # pulse, as run: the probes' halves lifted for the next exposure are drawn for its time
+                # (the tracker's, a frame on), the intervals dark between exposures for the pattern's
+                exposure_at = t0 + geometry.exposure_s / 2 + frame_s if run.predict else at
+                return on_at, _Probing(snapshot, probes, covers if run.strategy == "pulse" else probes, at,
+                                       exposure_at, copy.copy(levels))  # (an update replaces its arrays)
+            holes = tracker.holes(at)
             return on_at, _Fixed(_holes_pattern(holes, run, **drawn), holes.track_ids, holes)
         return on_at, _holes_pattern(found, run, **drawn)
 
@@ -432,27 +441,26 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                 # the tracks whose holes this exposure is taken under (none under a flash)
                 shown_ids = (None if run.strategy == "flash" else
                              Intervals.of(displayed.probes).ids if isinstance(displayed, _Probing) else
-                             displayed.ids if isinstance(displayed, (Prediction, _Fixed)) else None)
+                             displayed.ids if isinstance(displayed, _Fixed) else None)
                 shown_rested = levels.rested(shown_ids) if levels is not None and shown_ids is not None else None
             pulsed = run.strategy == "pulse" and j == 0 and detector is not None  # the exposure's refresh
             if detector is None:
                 shown = full
             elif run.strategy == "flash" and j == 0:
                 shown = flash  # the detection flash, timed to the exposure
-            elif isinstance(displayed, Prediction):  # holes predicted for this refresh's own time
-                shown = _holes_pattern(displayed.holes(ts + sub_s / 2), run, lifted=pulsed, **drawn)
             elif isinstance(displayed, _Probing):
-                at = ts + sub_s / 2 if run.predict else displayed.prediction.timestamp
                 # pulse: only the exposure's refresh needs the probe's half; the others keep the
                 # whole interval that may hold the particle dark
-                shown = _holes_pattern(displayed.prediction.holes(at), run, lifted=pulsed,
+                shown = _holes_pattern(displayed.prediction.holes(displayed.exposure_at if pulsed else displayed.at),
+                                       run, lifted=pulsed,
                                        probes=displayed.between if j else displayed.probes,
-                                       grow=bool(j) and displayed.between is not displayed.probes, **drawn)
+                                       grow=bool(j) and displayed.between is not displayed.probes,
+                                       **{**drawn, "levels": displayed.levels})
             elif isinstance(displayed, _Fixed):
                 shown = _holes_pattern(displayed.holes, run, lifted=True, **drawn) if pulsed else displayed.light
             else:
                 shown = displayed
-            if pulsed and not isinstance(displayed, (Prediction, _Fixed, _Probing)):  # (those drawn lifted above)
+            if pulsed and not isinstance(displayed, (_Fixed, _Probing)):  # (those drawn lifted above)
                 shown = np.maximum(shown, run.dim_level)  # holes dimmed only while the camera exposes
             # the scene's state is the frame's mid-exposure; particles keep moving through the
             # frame period, so each refresh lights them where they are in its middle

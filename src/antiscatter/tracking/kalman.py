@@ -35,6 +35,17 @@ __all__ = ["Tracker", "Tracks", "Prediction"]
 #: frame width (px) the motion settings' defaults are for (see Tracker.set_frame_size)
 REFERENCE_WIDTH = 800
 
+#: share of the frame period after a pattern goes on that its predicted holes are drawn for: a
+#: pattern stays on until the next one, a frame later, and a hole drawn for its middle is off by
+#: a quarter of a frame's motion at either end, where one drawn for its start was off by half a
+#: frame's at the end.  In the twin (co-located, 5 ms, prediction, mixed, 120 Hz projector: the
+#: pattern on for two refreshes, scene seeds 1-6, 1 s) pulsed holes removed 0.907 drawn for the
+#: start of the pattern's time, 0.922 / 0.929 / 0.925 for 0.375 / 0.5 / 0.625 of a frame later,
+#: keeping 0.953 / 0.952 / 0.952 / 0.951 of the scene light; holes redrawn for each refresh --
+#: no output of ``run`` does that -- 0.933 / 0.953, and each hole drawn at both refreshes'
+#: places at once 0.934 but kept 0.943.
+PREDICT_AHEAD = 0.5
+
 #: frames a lost confirmed track keeps its identity by default (see Tracker's keep_misses)
 KEEP_MISSES = 12
 
