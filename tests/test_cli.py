@@ -307,6 +307,25 @@ def test_run_scales_the_trackers_motion_to_the_frame_width(tmp_path, cli, width)
     assert len(rows) == 6 and len({r["track_id"] for r in rows}) == 1
 
 
+def test_predicted_holes_are_drawn_for_the_middle_of_the_time_their_pattern_is_on(tmp_path, cli):
+    # a disc moving 4 px a frame at 60 frames/s; with no latency the pattern goes on at the capture
+    # and stays a frame period: its hole is where the disc will be half a frame on, 2 px (16
+    # projector px at 1280 / 160) ahead of where it was seen
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i in range(8):
+        cv2.imwrite(str(frames / f"{i}.png"), draw_discs((160, 120), [(30.0 + 4 * i, 60.0, 5.0)]))
+
+    def hole_x(*extra):
+        out = tmp_path / ("pat" + "".join(extra))
+        result = cli("run", str(frames), "--track", "--latency-ms", "0", "--output", f"files:{out}", *extra)
+        assert result.code == 0, result.err
+        dark = cv2.imread(str(out / "7.png"), cv2.IMREAD_UNCHANGED) < 128
+        return float(np.nonzero(dark)[1].mean())
+
+    assert hole_x() - hole_x("--no-predict") == pytest.approx(16.0, abs=1.0)
+
+
 def test_strategy_dim_draws_holes_at_the_dim_level(tmp_path, cli):
     result = cli("run", str(_disc_frames(tmp_path)), "--strategy", "dim", "--dim-level", "0.2",
                  "--output", f"files:{tmp_path / 'pat'}")

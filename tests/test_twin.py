@@ -1,5 +1,6 @@
 """The digital twin's physics on hand-made cases, and the twin command."""
 
+import itertools
 import json
 
 import cv2
@@ -491,22 +492,49 @@ def fast_near_bubble(seed):
 
 
 @pytest.mark.parametrize("seed", [0, 1])
-def test_a_fast_near_bubble_is_tracked_and_kept_dark(seed, monkeypatch):
+def test_a_fast_near_bubble_keeps_its_track_in_the_loop(seed, monkeypatch):
     # born again in every frame, the bubble took its neighbours' flow and its hole was never where it
-    # was; found again beyond the gate (Tracker's far_bright), it is tracked and predicted
+    # was; found again beyond the gate (Tracker's far_bright), it keeps one track in the loop.  (Its
+    # hole is where it is halfway through each frame; one pattern a frame, as run draws it, cannot
+    # keep a speck crossing 30 px in that time dark.)
     import antiscatter.tracking as tracking
 
-    def run():
-        return simulate_loop(TwinRun("contrast", "calibrated", "pulse", predict=True),
-                             geometry=TwinGeometry(camera_size=SIZE, baseline_m=0.0), frames=40, latency_ms=5,
-                             scene=fast_near_bubble(seed))
+    tracker, geometry = tracking.Tracker, TwinGeometry(camera_size=SIZE, baseline_m=0.0)
 
-    found = run()
-    tracker = tracking.Tracker
-    monkeypatch.setattr(tracking, "Tracker", lambda **kw: tracker(**kw, far_bright=0))
-    lost = run()
-    assert found["backscatter_removed"] >= lost["backscatter_removed"] + 0.1
-    assert found["scene_light_kept"] == pytest.approx(lost["scene_light_kept"], abs=0.005)
+    def run(**settings):
+        scene, ids = fast_near_bubble(seed), []
+
+        def recording(**kw):
+            made = tracker(**kw, **settings)
+            update = made.update
+
+            def update_and_record(detections, timestamp, **options):
+                tracks = update(detections, timestamp, **options)
+                p = scene.particles()  # the frame just seen; the bubble is the nearest particle
+                near = int(np.argmin(p["Z"]))
+                u, v = geometry.to_camera(p["X"][near], p["Y"][near], p["Z"][near])
+                if len(detections):
+                    off = np.hypot(detections.centres[:, 0] - u, detections.centres[:, 1] - v)
+                    if off.min() < 3:
+                        ids.append(int(tracks.detection_ids[np.argmin(off)]))
+                return tracks
+            made.update = update_and_record
+            return made
+
+        monkeypatch.setattr(tracking, "Tracker", recording)
+        simulate_loop(TwinRun("contrast", "calibrated", "pulse", predict=True), geometry=geometry, frames=40,
+                      latency_ms=5, scene=scene)
+        return ids
+
+    def longest(ids):  # the most sightings in a row on one track
+        runs = [len(list(group)) for _, group in itertools.groupby(ids)]
+        return max(runs, default=0)
+
+    found, lost = run(), run(far_bright=0)
+    # seen in 9-12 frames of its two or three crossings: held by one track for 6 sightings or more,
+    # against a new one nearly every frame without the far search
+    assert len(found) >= 8 and longest(found) >= 6
+    assert len(lost) >= 8 and longest(lost) <= 2
 
 
 def test_dim_holes_rest_two_frames_after_each_look_by_default():

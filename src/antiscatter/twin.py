@@ -8,8 +8,10 @@ that was on during its exposure: the patterns the system displayed in those
 sub-frames, averaged, sampled where each particle sits in projector pixels,
 and warped onto the background plane.  The system under test -- the same
 detector, tracker, pattern rendering and mapping as ``antiscatter run`` --
-sees that frame; its pattern is ready ``latency`` after the exposure ends and
-goes on at the next projector refresh.
+sees that frame; its pattern is ready ``latency`` after the exposure ends,
+goes on at the next projector refresh and stays on until the next pattern, a
+frame later -- one pattern a frame, as ``run`` shows them, its predicted holes
+drawn for the middle of that time (``tracking.PREDICT_AHEAD``).
 
 Figures, integrated over every sub-frame (flashes included):
 

@@ -710,11 +710,9 @@ class Tracker:
 
 @dataclass(frozen=True, eq=False)
 class Prediction:
-    """A frozen copy of the tracks after one update, to draw holes for any time after it.
-
-    The output side can ask it for every projector refresh, each for its own
-    display time, while the tracker goes on with later frames.
-    """
+    """A frozen copy of the tracks after one update, to draw holes for any time after it
+    (``PREDICT_AHEAD``: the time ``run`` draws them for), while the tracker goes on with later
+    frames."""
 
     x: np.ndarray
     pp: np.ndarray
