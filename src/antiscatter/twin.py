@@ -409,7 +409,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
             at = on_at + PREDICT_AHEAD * frame_s if run.predict else t0 + geometry.exposure_s / 2
             if probe is not None:
                 snapshot = tracker.snapshot()
-                probes, covers = probe.plan(snapshot.holes(t0))
+                probes, covers = probe.plan(snapshot.holes(at))
                 # pulse, as run: the probes' halves lifted for the next exposure are drawn for its time
                 # (the tracker's, a frame on), the intervals dark between exposures for the pattern's
                 exposure_at = t0 + geometry.exposure_s / 2 + frame_s if run.predict else at
