@@ -62,6 +62,8 @@ fps = 30
     ("[source]\nsize = '800by600'\n", "run.toml: source.size: got '800by600', allowed WIDTHxHEIGHT, e.g. 800x600"),
     ("[pattern]\nmapping = [[1, 0], [0, 1]]\n", "run.toml: pattern.mapping: got [[1, 0], [0, 1]], allowed a 3x3 matrix of finite numbers"),
     ("[pattern]\nmargin = -1\n", "run.toml: pattern.margin: got -1.0, allowed a number >= 0"),
+    ("[pattern]\nrefresh_hz = 0\n", "run.toml: pattern.refresh_hz: got 0.0, allowed a number of refreshes a second > 0"),
+    ("[pattern]\nrefresh_hz = nan\n", "run.toml: pattern.refresh_hz: got nan, allowed a number of refreshes a second > 0"),
     ("[detector]\nname = 'seed'\n[detector.seed]\nthreshold = 300\n", "run.toml: detector.seed.threshold: got 300, allowed 0..255"),
     ("[detector]\nname = 'seed'\n[detector.seed]\ncolour = 1\n", "run.toml: unknown key detector.seed.colour; allowed: threshold, blur_kernel, canny_sigma, equalise"),
     ("[detector.contrast]\nk = -1\n", "run.toml: detector.contrast.k: got -1.0, allowed a number > 0"),

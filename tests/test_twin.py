@@ -531,9 +531,9 @@ def test_a_fast_near_bubble_keeps_its_track_in_the_loop(seed, monkeypatch):
         return max(runs, default=0)
 
     found, lost = run(), run(far_bright=0)
-    # seen in 9-12 frames of its two or three crossings: held by one track for 6 sightings or more,
-    # against a new one nearly every frame without the far search
-    assert len(found) >= 8 and longest(found) >= 6
+    # seen in 6-12 frames of its two or three crossings (less often once its hole is on it): held
+    # by one track for 5 sightings or more, against a new one nearly every frame without the far search
+    assert len(found) >= 6 and longest(found) >= 5
     assert len(lost) >= 8 and longest(lost) <= 2
 
 

@@ -115,6 +115,8 @@ class PatternConfig:
         identity scaled from the camera size to the projector size.
     calibration: the calibration file the mapping came from (its depth model serves
         ``light.depth = "probe"``); empty = none.
+    refresh_hz: the projector's refresh rate (ML550: 120 Hz); with pulsed holes and prediction the
+        pattern lifted for an exposure is on for a refresh, and its holes are drawn for its middle.
     """
 
     width: int = 1280
@@ -124,8 +126,11 @@ class PatternConfig:
     grow_from: float = GROW_FROM
     mapping: tuple = ()
     calibration: str = ""
+    refresh_hz: float = 120.0
 
     def __post_init__(self) -> None:
+        if not (math.isfinite(self.refresh_hz) and self.refresh_hz > 0):
+            raise ValueError(f"refresh_hz: got {self.refresh_hz}, allowed a number of refreshes a second > 0")
         for name in ("width", "height"):  # the projector's pixels; three such buffers are kept
             if not 0 < getattr(self, name) <= MAX_PROJECTOR_SIDE:
                 raise ValueError(f"{name}: got {getattr(self, name)}, allowed 1..{MAX_PROJECTOR_SIDE}")

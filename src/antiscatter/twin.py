@@ -69,7 +69,7 @@ class _Fixed:
 
     light: np.ndarray
     ids: np.ndarray
-    holes: Detections  # (pulse: lifted while the camera exposes)
+    holes: Detections  # pulse: the holes lifted while the camera exposes, drawn for that time
 
 
 @dataclass(frozen=True)
@@ -407,16 +407,17 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
             # as run: one pattern a frame, on until the next; predicted, its holes are where the
             # particles will be halfway through that time (``PREDICT_AHEAD``)
             at = on_at + PREDICT_AHEAD * frame_s if run.predict else t0 + geometry.exposure_s / 2
+            # pulse, as run: the pattern lifted for the next exposure is on for its refresh, and drawn
+            # for that refresh's middle
+            exposure_at = t0 + frame_s + sub_s / 2 if run.predict and run.strategy == "pulse" else at
             if probe is not None:
                 snapshot = tracker.snapshot()
                 probes, covers = probe.plan(snapshot.holes(at))
-                # pulse, as run: the probes' halves lifted for the next exposure are drawn for its time
-                # (the tracker's, a frame on), the intervals dark between exposures for the pattern's
-                exposure_at = t0 + geometry.exposure_s / 2 + frame_s if run.predict else at
                 return on_at, _Probing(snapshot, probes, covers if run.strategy == "pulse" else probes, at,
                                        exposure_at, copy.copy(levels))  # (an update replaces its arrays)
             holes = tracker.holes(at)
-            return on_at, _Fixed(_holes_pattern(holes, run, **drawn), holes.track_ids, holes)
+            return on_at, _Fixed(_holes_pattern(holes, run, **drawn), holes.track_ids,
+                                 holes if exposure_at == at else tracker.holes(exposure_at))
         return on_at, _holes_pattern(found, run, **drawn)
 
     for k in range(frames):
