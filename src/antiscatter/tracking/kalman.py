@@ -227,7 +227,9 @@ class Tracker:
         Twin (co-located, pulse, prediction, 5 ms, scene seeds 1-6, 1 s) removed: mixed 0.9306 ->
         0.9325, sand 0.8348 -> 0.8391, survey 0.9092 -> 0.9112, textured +0.0002, snow and
         bubbles the same, scene light kept the same to 0.0002; mixed over 5 s runs 0.9487 / 0.9579
-        -> 0.9518 / 0.9580 removed / kept (4 / 10: 0.9520 / 0.9516); dense (seeds 1-3) 0.8746 ->
+        -> 0.9518 / 0.9580 removed / kept (4 / 10: 0.9520 / 0.9516; these with the twin's holes redrawn
+        each refresh, which no output of run does; one pattern a frame, as run, 0.9503 -> 0.9516); dense
+        (seeds 1-3) 0.8746 ->
         0.8783.  Isolated-particle IDF1 (the catalogue): dense 0.8834 ->
         0.8849, mixed 0.9566 -> 0.9576, fullres 0.9612 -> 0.9623, sand +0.0004, the rest the
         same (4: seed tank 0.8860 -> 0.8841; with no brightness bound 0.8811, whose white discs
