@@ -289,8 +289,8 @@ class _Record:
     probes: Mapping = field(default_factory=dict)  # depth probing: each track's interval in this pattern
     hole_ids: Any = None  # the track ids of this pattern's holes
     intervals: Mapping | None = None  # depth probing with pulse: each track's whole remaining interval
-    exposure: Any = None  # pulse with probing: the pattern for the next exposure (probe halves lifted)
-    exposure_holes: Any = None  # ... its holes (Detections), where the particles will be during it
+    exposure: Any = None  # pulse with probing, levels or prediction: the pattern for the next exposure
+    exposure_holes: Any = None  # pulse with prediction: its holes (Detections), for the time it is on
     rested_ids: Any = None  # the track ids of this pattern's holes left fully dark (HoleLevels.rest)
     learned: threading.Event | None = None  # the detector's deferred stages are done (None: none pending)
 
