@@ -41,7 +41,8 @@ REFERENCE_WIDTH = 800
 #: frame's at the end.  In the twin (co-located, 5 ms, prediction, mixed, 120 Hz projector: the
 #: pattern on for two refreshes, scene seeds 1-6, 1 s) pulsed holes removed 0.907 drawn for the
 #: start of the pattern's time, 0.922 / 0.929 / 0.925 for 0.375 / 0.5 / 0.625 of a frame later,
-#: keeping 0.953 / 0.952 / 0.952 / 0.951 of the scene light; holes redrawn for each refresh --
+#: keeping 0.953 / 0.952 / 0.952 / 0.951 of the scene light (dim holes 0.911 / 0.917 / 0.909 for
+#: 0.375 / 0.5 / 0.625, at 12 cm pulsed probing 0.806 / 0.813 / 0.812); holes redrawn for each refresh --
 #: no output of ``run`` does that -- 0.933 / 0.953, and each hole drawn at both refreshes'
 #: places at once 0.934 but kept 0.943.
 PREDICT_AHEAD = 0.5
