@@ -77,6 +77,24 @@ def loop(strategy, **kw):
                          scene=one_static_particle())
 
 
+@pytest.mark.parametrize("strategy, per_frame", [("dim", 1), ("pulse", 2)])
+def test_one_pattern_a_frame_as_run_draws_them(strategy, per_frame, monkeypatch):
+    # run shows one pattern a camera frame (pulse: and the one lifted for the next exposure), each
+    # held until the next; the twin measures that, not holes redrawn for each projector refresh
+    import antiscatter.twin as twin
+
+    drawn, real = [], twin._holes_pattern
+    monkeypatch.setattr(twin, "_holes_pattern", lambda *a, **kw: drawn.append(1) or real(*a, **kw))
+    frames = 12
+    out = simulate_loop(TwinRun("contrast", "calibrated", strategy, predict=True),
+                        geometry=TwinGeometry(camera_size=SIZE, baseline_m=0.0, projector_hz=240.0), frames=frames,
+                        latency_ms=5, scene=one_static_particle())
+    assert out["backscatter_removed"] > 0.5
+    # four refreshes a frame at 240 Hz: a pattern a frame, and a lifted one for each exposure after
+    # the first pattern is on (pulse)
+    assert frames * per_frame - 2 <= len(drawn) <= frames * per_frame
+
+
 def test_the_naive_loop_flickers_and_removes_about_half():
     out = loop("none")
     removed = [f["removed"] for f in out["series"][4:]]
