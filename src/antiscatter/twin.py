@@ -407,9 +407,11 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
             # as run: one pattern a frame, on until the next; predicted, its holes are where the
             # particles will be halfway through that time (``PREDICT_AHEAD``)
             at = on_at + PREDICT_AHEAD * frame_s if run.predict else t0 + geometry.exposure_s / 2
-            # pulse, as run: the pattern lifted for the next exposure is on for its refresh, and drawn
-            # for that refresh's middle
-            exposure_at = t0 + frame_s + sub_s / 2 if run.predict and run.strategy == "pulse" else at
+            # pulse, as run: what the next exposure is taken under is drawn for its time -- the
+            # probes' halves for its start, the lifted pattern for the middle of its refresh
+            exposure_at = at
+            if run.predict and run.strategy == "pulse":
+                exposure_at = t0 + frame_s + (0.0 if probe is not None else sub_s / 2)
             if probe is not None:
                 snapshot = tracker.snapshot()
                 probes, covers = probe.plan(snapshot.holes(at))
