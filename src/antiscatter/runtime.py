@@ -442,12 +442,13 @@ class _Pipeline:
                 probes, covers = self.probe.plan(holes)
                 if self.pulse_level is not None:
                     intervals = covers
-                    if tc.predict:  # the halves the next exposure judges: where the particles will be then
-                        exposure_holes = prediction.holes(captured + (self.frame_period or 0.0))
-            elif self.pulse_level is not None and tc.predict:
-                # the pattern lifted for the next exposure is on for a projector refresh from its start:
-                # its holes for the middle of that (twin, co-located, 12 scenes: 0.925 -> 0.928 removed)
-                exposure_holes = prediction.holes(captured + (self.frame_period or 0.0) + self.refresh_s / 2)
+            if self.pulse_level is not None and tc.predict:
+                # what the next exposure, a frame on, is taken under, drawn for its time: the probes'
+                # halves it judges for its start; the lifted pattern, on for a projector refresh from
+                # then, for the middle of that (twin, co-located, 12 scenes: 0.925 -> 0.928 removed)
+                next_exposure = captured + (self.frame_period or 0.0)
+                exposure_holes = prediction.holes(next_exposure if self.probe is not None
+                                                  else next_exposure + self.refresh_s / 2)
             if self.levels is not None:  # how bright each came back under its own hole (or probe: its verdict)
                 self.levels.update(detections, track_ids, self.unlit_ids if self.probe is None else self.probe.dimmed,
                                    tracks.ids, tracks.ids[tracks.confirmed], rested=self.rested_ids)
@@ -490,10 +491,12 @@ class _Pipeline:
                                             hole=grey if grey is not None and rec.intervals is None
                                             else self.hole_level, given_only=True)
             if rec.intervals is not None:
+                # (holes of one prediction for another time: the same tracks in the same order, so
+                # the same levels)
                 exposed = holes if rec.exposure_holes is None else rec.exposure_holes
                 rec.exposure = self.probe.render(exposed, rec.probes, size=self.projector_size, margin=margin,
-                                                 out=self.exposure_buffer, hole=self.pulse_level if grey is None
-                                                 else self.levels.grey(exposed.track_ids), given_only=True)
+                                                 out=self.exposure_buffer,
+                                                 hole=self.pulse_level if grey is None else grey, given_only=True)
         else:
             holes = grown(rec.pattern)
             rec.hole_ids = holes.track_ids
@@ -505,9 +508,9 @@ class _Pipeline:
                 # pulse, predicted: the lifted pattern drawn for its own time (a second drawing, 0.28 ms
                 # median for 230 holes at 1280x800 on the development VM), each hole at its own level or
                 # at the pulse's
-                lifted = grown(rec.exposure_holes)
-                rec.exposure = render_pattern(lifted, out=self.exposure_buffer, hole=self.pulse_level
-                                              if grey is None else self.levels.grey(lifted.track_ids), **draw)
+                # (the same tracks as ``holes``, in the same order: the same levels)
+                rec.exposure = render_pattern(grown(rec.exposure_holes), out=self.exposure_buffer,
+                                              hole=self.pulse_level if grey is None else grey, **draw)
                 rec.pattern = render_pattern(holes, out=buffer, **draw)
             elif grey is not None and self.pulse_level is not None:
                 # pulse: each hole at its own level while the camera looks; between exposures the same
