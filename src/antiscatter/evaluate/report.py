@@ -272,6 +272,13 @@ def _twin_rows(frames: int, log: Callable[[str], None], *, seeds: int = 3,
     jobs = [(run, baseline, latency, seed, frames, 0.0, 0.0)
             for baseline in (0.0, 0.12) for latency in (5.0, 10.0, 20.0)
             for run in default_runs(baseline) for seed in range(1, seeds + 1)]
+    return _loop_rows(jobs, seeds, log, workers)
+
+
+def _loop_rows(jobs: list[tuple], seeds: int, log: Callable[[str], None],
+               workers: int | None) -> list[dict[str, Any]]:
+    """A row per run of ``jobs`` (``_twin_job``'s tuples, each run's ``seeds`` scenes in a row): its
+    baseline, latency, name and figures over its scenes."""
     rows = []
     for job, group in _twin_groups(jobs, seeds, log, workers):
         run, baseline, latency = job[:3]
@@ -295,12 +302,7 @@ def _long_rows(frames: int, log: Callable[[str], None], *, seeds: int = 6,
 
     jobs = [(TwinRun("contrast", mapping, strategy, predict), baseline, latency, seed, frames, 0.0, 0.0)
             for baseline, latency, mapping, strategy, predict in LONG_RUNS for seed in range(1, seeds + 1)]
-    rows = []
-    for job, group in _twin_groups(jobs, seeds, log, workers):
-        run, baseline, latency = job[:3]
-        rows.append({"baseline_m": baseline, "latency_ms": latency, "run": _run_name(run, group[0]),
-                     **_group_figures(group)})
-    return rows
+    return _loop_rows(jobs, seeds, log, workers)
 
 
 #: the scoreboard's projector lens: aperture (mm) and the distances it is focused at (m)
