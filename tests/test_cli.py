@@ -444,11 +444,14 @@ def test_strategy_pulse_lifts_the_last_patterns_holes_only_for_the_capture(tmp_p
         assert np.array_equal(shown[3 * i + 2], patterns[i])
 
 
-def test_pulse_with_prediction_lifts_holes_drawn_for_the_next_exposures_refresh(tmp_path, cli):
-    # a disc moving 4 px a frame at 60 frames/s, no latency: the pattern's hole is where it will be
-    # half a frame on (2 px ahead), the hole lifted for the next exposure where it will be in the
-    # middle of that exposure's 120 Hz refresh, 1/60 + 1/240 s on (5 px ahead): 3 camera px, 24
-    # projector px, beyond the pattern's
+@pytest.mark.parametrize("latency, ahead", [("0", 24.0), ("20", 17.6)])
+def test_pulse_with_prediction_lifts_holes_drawn_for_the_next_exposures_refresh(tmp_path, cli, latency, ahead):
+    # a disc moving 4 px a frame (240 px/s) at 60 frames/s: the pattern's hole is where it will be
+    # half a frame after the pattern goes on, the hole lifted for the first exposure under it where
+    # it will be in the middle of that exposure's 120 Hz refresh.  No latency: 2 px and 1/60 +
+    # 1/240 s on, 5 px -- 3 camera px, 24 projector px, beyond the pattern's; 20 ms, more than a
+    # frame: the pattern goes on after the next exposure began, so it is the one after that
+    # (2/60 + 1/240 s, 9 px) against 20 ms + 1/120 s (6.8 px): 2.2 camera px, 17.6 projector px
     frames = tmp_path / "frames"
     frames.mkdir()
     for i in range(8):
@@ -456,14 +459,14 @@ def test_pulse_with_prediction_lifts_holes_drawn_for_the_next_exposures_refresh(
     config = tmp_path / "c.toml"
     config.write_text("[pattern]\nrefresh_hz = 120\n")
     out = tmp_path / "pat"
-    result = cli("run", str(frames), "--track", "--latency-ms", "0", "--strategy", "pulse", "--levels", "fixed",
+    result = cli("run", str(frames), "--track", "--latency-ms", latency, "--strategy", "pulse", "--levels", "fixed",
                  "--dim-level", "0.2", "--config", str(config), "--output", f"files:{out}")
     assert result.code == 0, result.err
     pattern = cv2.imread(str(out / "6.png"), cv2.IMREAD_UNCHANGED)
     lifted = cv2.imread(str(out / "flash-7.png"), cv2.IMREAD_UNCHANGED)  # shown for frame 7's exposure
     assert set(np.unique(lifted)) == {51, 255} and set(np.unique(pattern)) == {0, 255}
-    ahead = np.nonzero(lifted == 51)[1].mean() - np.nonzero(pattern == 0)[1].mean()
-    assert ahead == pytest.approx(24.0, abs=1.5)
+    shift = np.nonzero(lifted == 51)[1].mean() - np.nonzero(pattern == 0)[1].mean()
+    assert shift == pytest.approx(ahead, abs=1.5)
 
 
 def test_strategy_flash_skips_frames_exposed_before_the_flash():

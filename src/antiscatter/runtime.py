@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import array
 import csv
+import math
 import os
 import signal
 import sys
@@ -443,10 +444,13 @@ class _Pipeline:
                 if self.pulse_level is not None:
                     intervals = covers
             if self.pulse_level is not None and tc.predict:
-                # what the next exposure, a frame on, is taken under, drawn for its time: the probes'
-                # halves it judges for its start; the lifted pattern, on for a projector refresh from
-                # then, for the middle of that (twin, co-located, 12 scenes: 0.925 -> 0.928 removed)
-                next_exposure = captured + (self.frame_period or 0.0)
+                # what the first exposure under this pattern -- the first to start after it goes on --
+                # is taken under, drawn for its time: the probes' halves it judges for its start; the
+                # lifted pattern, on for a projector refresh from then, for the middle of that (twin,
+                # co-located, 12 scenes: 0.925 -> 0.928 removed)
+                period = self.frame_period or 0.0
+                next_exposure = captured + (period * max(1, math.ceil(latency / period - 1e-9)) if period
+                                            else latency)
                 exposure_holes = prediction.holes(next_exposure if self.probe is not None
                                                   else next_exposure + self.refresh_s / 2)
             if self.levels is not None:  # how bright each came back under its own hole (or probe: its verdict)

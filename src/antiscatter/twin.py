@@ -407,11 +407,12 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
             # as run: one pattern a frame, on until the next; predicted, its holes are where the
             # particles will be halfway through that time (``PREDICT_AHEAD``)
             at = on_at + PREDICT_AHEAD * frame_s if run.predict else t0 + geometry.exposure_s / 2
-            # pulse, as run: what the next exposure is taken under is drawn for its time -- the
-            # probes' halves for its start, the lifted pattern for the middle of its refresh
+            # pulse, as run: what the first exposure under this pattern is taken under is drawn for
+            # its time -- the probes' halves for its start, the lifted pattern for the middle of its
+            # refresh (a pattern ready after the next exposure began waits for the one after)
             exposure_at = at
             if run.predict and run.strategy == "pulse":
-                exposure_at = t0 + frame_s + (0.0 if probe is not None else sub_s / 2)
+                exposure_at = math.ceil(on_at / frame_s - 1e-9) * frame_s + (0.0 if probe is not None else sub_s / 2)
             if probe is not None:
                 snapshot = tracker.snapshot()
                 probes, covers = probe.plan(snapshot.holes(at))
