@@ -267,6 +267,15 @@ def test_output_in_a_missing_folder_is_refused_before_any_work(tmp_path, cli, ar
     assert not (tmp_path / "missing").exists() and not (tmp_path / "sim").exists()
 
 
+def _moving_disc_frames(tmp_path):
+    """A folder of 8 frames (160x120, 60 frames/s as a folder is replayed): a disc moving 4 px a frame."""
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i in range(8):
+        cv2.imwrite(str(frames / f"{i}.png"), draw_discs((160, 120), [(30.0 + 4 * i, 60.0, 5.0)]))
+    return frames
+
+
 def _disc_frames(tmp_path, count=4):
     frames = tmp_path / "frames"
     frames.mkdir()
@@ -311,10 +320,7 @@ def test_predicted_holes_are_drawn_for_the_middle_of_the_time_their_pattern_is_o
     # a disc moving 4 px a frame at 60 frames/s; with no latency the pattern goes on at the capture
     # and stays a frame period: its hole is where the disc will be half a frame on, 2 px (16
     # projector px at 1280 / 160) ahead of where it was seen
-    frames = tmp_path / "frames"
-    frames.mkdir()
-    for i in range(8):
-        cv2.imwrite(str(frames / f"{i}.png"), draw_discs((160, 120), [(30.0 + 4 * i, 60.0, 5.0)]))
+    frames = _moving_disc_frames(tmp_path)
 
     def hole_x(*extra):
         out = tmp_path / ("pat" + "".join(extra))
@@ -452,10 +458,7 @@ def test_pulse_with_prediction_lifts_holes_drawn_for_the_next_exposures_refresh(
     # 1/240 s on, 5 px -- 3 camera px, 24 projector px, beyond the pattern's; 20 ms, more than a
     # frame: the pattern goes on after the next exposure began, so it is the one after that
     # (2/60 + 1/240 s, 9 px) against 20 ms + 1/120 s (6.8 px): 2.2 camera px, 17.6 projector px
-    frames = tmp_path / "frames"
-    frames.mkdir()
-    for i in range(8):
-        cv2.imwrite(str(frames / f"{i}.png"), draw_discs((160, 120), [(30.0 + 4 * i, 60.0, 5.0)]))
+    frames = _moving_disc_frames(tmp_path)
     config = tmp_path / "c.toml"
     config.write_text("[pattern]\nrefresh_hz = 120\n")
     out = tmp_path / "pat"
