@@ -94,13 +94,14 @@ def test_a_track_found_after_its_hole_went_keeps_its_id_but_starts_its_motion_af
     first = int(tracks.ids[0])
     for f in range(10, 16):  # lost for 6 frames: past max_misses, within keep_misses
         tracker.update(Detections.empty(), f * DT)
-    # found again 15 px short of where its motion would have taken it: another particle, or the
-    # same one slowed -- its old motion is stale
-    tracks = tracker.update(Detections([[165.0, 200.0]], [3.0]), 16 * DT)
+    # found again 6 px short of where its motion would have taken it (inside its gate, which its
+    # steady motion has narrowed to 9 px): another particle, or the same one slowed -- its old
+    # motion is stale
+    tracks = tracker.update(Detections([[174.0, 200.0]], [3.0]), 16 * DT)
     assert tracks.detection_ids.tolist() == [first]
     assert not tracks.confirmed[0] and np.allclose(tracks.velocities[0], 0.0)
     hole = tracker.holes(16 * DT + 0.02)  # seen once since: its hole where it was seen, not moved on
-    assert np.allclose(hole.centres[0], [165.0, 200.0], atol=0.5)
+    assert np.allclose(hole.centres[0], [174.0, 200.0], atol=0.5)
     # within max_misses the motion is kept: the hole moves on
     tracker = Tracker(max_misses=3)
     for f in range(10):
@@ -297,12 +298,19 @@ def test_bad_arguments_and_time_going_back():
         tracker.update(Detections.empty(), 0.5)
 
 
-def test_block_filter_equals_the_full_5x5_kalman_filter():
-    """The tracker's closed-form per-axis filter against a textbook full-matrix Kalman filter."""
+@pytest.mark.parametrize("floor", [1.0, 0.25])
+def test_block_filter_equals_the_full_5x5_kalman_filter(floor):
+    """The tracker's closed-form per-axis filter against a textbook full-matrix Kalman filter --
+    and with its noise matched to the motion, against the same filter with the noise corrected by
+    the averaged normalised innovation squared, step by step."""
+    from antiscatter.tracking.kalman import NIS_MEMORY, NIS_RATE
+
     rng = np.random.default_rng(3)
     tracker = Tracker(accel_noise=900.0, radius_noise=3.0, position_noise=0.8, radius_measurement_noise=1.2,
-                      initial_speed=250.0)
-    q, rn, pm, rm, v0 = 900.0 ** 2, 3.0 ** 2, 0.8 ** 2, 1.2 ** 2, 250.0 ** 2
+                      initial_speed=250.0, accel_floor=floor)
+    accel, rn, pm, rm, v0 = 900.0, 3.0 ** 2, 0.8 ** 2, 1.2 ** 2, 250.0 ** 2
+    nis = 2.0
+    accels = []
     H = np.array([[1, 0, 0, 0, 0], [0, 1, 0, 0, 0], [0, 0, 0, 0, 1]], float)
     R = np.diag([pm, pm, rm])
     times = np.cumsum(rng.uniform(0.01, 0.03, 25))
@@ -318,16 +326,49 @@ def test_block_filter_equals_the_full_5x5_kalman_filter():
             dt = t - times[i - 1]
             F = np.eye(5)
             F[0, 2] = F[1, 3] = dt
+            q = accel ** 2
             Q = np.zeros((5, 5))
             for p, v in ((0, 2), (1, 3)):
                 Q[p, p], Q[p, v], Q[v, p], Q[v, v] = q * dt ** 4 / 4, q * dt ** 3 / 2, q * dt ** 3 / 2, q * dt ** 2
             Q[4, 4] = rn * dt
             x, P = F @ x, F @ P @ F.T + Q
-            K = P @ H.T @ np.linalg.inv(H @ P @ H.T + R)
-            x, P = x + K @ (z - H @ x), (np.eye(5) - K @ H) @ P
+            S = H @ P @ H.T + R
+            innovation = z - H @ x
+            nis = NIS_MEMORY * nis + (1 - NIS_MEMORY) * (innovation[0] ** 2 / S[0, 0] + innovation[1] ** 2 / S[1, 1])
+            accel = min(max(accel * (nis / 2) ** NIS_RATE, floor * 900.0), 900.0) if floor < 1 else accel
+            K = P @ H.T @ np.linalg.inv(S)
+            x, P = x + K @ innovation, (np.eye(5) - K @ H) @ P
+        accels.append(accel)
+        assert tracker.qa[0] == pytest.approx(accel, rel=1e-9)
+    if floor < 1:  # straight, steady motion: the noise fell
+        assert accels[-1] < 0.5 * 900.0
     np.testing.assert_allclose(tracker.x[0], x, rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose([tracker.pp[0, 0], tracker.pv[0, 0], tracker.vv[0, 0], tracker.rr[0]],
                                [P[0, 0], P[0, 2], P[2, 2], P[4, 4]], rtol=1e-9)
+
+
+def test_each_tracks_noise_follows_its_own_motion():
+    """A steady particle's acceleration noise falls to the floor and its gate and hole narrow; a
+    wobbling one beside it keeps its noise high and its id."""
+    rng = np.random.default_rng(5)
+    t = np.arange(90) * DT
+    steady = np.column_stack([100 + 120 * t, 300 + 40 * t])
+    wobble = np.column_stack([500 + 60 * t + 6 * np.sin(2 * np.pi * 3 * t), 300 + 6 * np.cos(2 * np.pi * 3 * t)])
+    positions = np.stack([steady, wobble], axis=1) + rng.normal(0, 0.3, (90, 2, 2))
+    tracker = Tracker()
+    ids = run(tracker, positions)
+    assert (ids == ids[0]).all()
+    order = [int(np.flatnonzero(tracker.ids == i)[0]) for i in ids[0]]
+    floor = tracker.accel_floor * tracker.accel_noise
+    assert tracker.qa[order[0]] == pytest.approx(floor)
+    assert tracker.qa[order[1]] > 2 * floor  # 6 px at 3 Hz: 2100 px/s^2
+    gates = tracker._gates(tracker.pp[order])
+    assert gates[0] < gates[1]
+    # the same particles with one noise for both: the steady one's hole grows more
+    fixed = Tracker(accel_floor=1.0)
+    run(fixed, positions)
+    at = 89 * DT + 0.02
+    assert tracker.holes(at).radii[order[0]] < fixed.holes(at).radii[order[0]]
 
 
 def test_a_track_in_the_dark_of_its_own_hole_lives_on_with_max_dark():
