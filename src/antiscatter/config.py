@@ -186,6 +186,9 @@ class TrackConfig:
         detection, may be found again anywhere within the widest gate when it and a detection of
         alike flux are each other's only candidate there: a near particle crosses the view fast
         (0 = off; default 6; off with flux_ratio, see Tracker).
+    accel_floor: the least acceleration noise a track's may fall to as it is matched to its own
+        motion, a share of the tracker's noise (1 = one noise for every track; default 0.25, see
+        Tracker).
     """
 
     enabled: bool = False
@@ -199,6 +202,7 @@ class TrackConfig:
     merge_reach: float = 0.7
     flux_ratio: float = 6.0
     far_bright: float = 6.0
+    accel_floor: float = 0.25
 
     def __post_init__(self) -> None:
         if not math.isfinite(self.latency_ms):
@@ -219,6 +223,8 @@ class TrackConfig:
             raise ValueError(f"flux_ratio: got {self.flux_ratio}, allowed 0 (off) or a number >= 1")
         if not (math.isfinite(self.far_bright) and (self.far_bright == 0 or self.far_bright >= 1)):
             raise ValueError(f"far_bright: got {self.far_bright}, allowed 0 (off) or a number >= 1")
+        if not (math.isfinite(self.accel_floor) and 0 < self.accel_floor <= 1):
+            raise ValueError(f"accel_floor: got {self.accel_floor}, allowed a share of the noise, > 0 and <= 1")
 
 
 STRATEGIES = ("none", "dim", "pulse", "flash", "coast")
