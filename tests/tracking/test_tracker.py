@@ -303,13 +303,13 @@ def test_block_filter_equals_the_full_5x5_kalman_filter(floor):
     """The tracker's closed-form per-axis filter against a textbook full-matrix Kalman filter --
     and with its noise matched to the motion, against the same filter with the noise corrected by
     the averaged normalised innovation squared, step by step."""
-    from antiscatter.tracking.kalman import NIS_MEMORY, NIS_RATE
+    from antiscatter.tracking.kalman import NIS_MEMORY, NIS_RATE, WHITE_GAIN, WHITE_MEMORY
 
     rng = np.random.default_rng(3)
     tracker = Tracker(accel_noise=900.0, radius_noise=3.0, position_noise=0.8, radius_measurement_noise=1.2,
                       initial_speed=250.0, accel_floor=floor)
     accel, rn, pm, rm, v0 = 900.0, 3.0 ** 2, 0.8 ** 2, 1.2 ** 2, 250.0 ** 2
-    nis = 2.0
+    nis, lag, power, last = 2.0, 0.0, 0.0, np.zeros(2)
     accels = []
     H = np.array([[1, 0, 0, 0, 0], [0, 1, 0, 0, 0], [0, 0, 0, 0, 1]], float)
     R = np.diag([pm, pm, rm])
@@ -334,8 +334,13 @@ def test_block_filter_equals_the_full_5x5_kalman_filter(floor):
             x, P = F @ x, F @ P @ F.T + Q
             S = H @ P @ H.T + R
             innovation = z - H @ x
-            nis = NIS_MEMORY * nis + (1 - NIS_MEMORY) * (innovation[0] ** 2 / S[0, 0] + innovation[1] ** 2 / S[1, 1])
-            accel = min(max(accel * (nis / 2) ** NIS_RATE, floor * 900.0), 900.0) if floor < 1 else accel
+            u = innovation[:2] / np.sqrt([S[0, 0], S[1, 1]])
+            nis = NIS_MEMORY * nis + (1 - NIS_MEMORY) * (u @ u)
+            lag = WHITE_MEMORY * lag + (1 - WHITE_MEMORY) * (u @ last)
+            power = WHITE_MEMORY * power + (1 - WHITE_MEMORY) * (u @ u + last @ last) / 2
+            last = u
+            factor = (nis / 2) ** NIS_RATE * 2 ** (WHITE_GAIN * lag / power)
+            accel = min(max(accel * factor, floor * 900.0), 900.0) if floor < 1 else accel
             K = P @ H.T @ np.linalg.inv(S)
             x, P = x + K @ innovation, (np.eye(5) - K @ H) @ P
         accels.append(accel)
@@ -369,6 +374,32 @@ def test_each_tracks_noise_follows_its_own_motion():
     run(fixed, positions)
     at = 89 * DT + 0.02
     assert tracker.holes(at).radii[order[0]] < fixed.holes(at).radii[order[0]]
+
+
+def test_a_filter_lagging_an_accelerating_particle_keeps_its_noise_up(monkeypatch):
+    """A particle speeding up steadily (900 px/s^2) is lagged by a constant-velocity filter: its
+    innovations stay small -- the NIS alone would lower its noise -- but keep one sign, and their
+    correlation from one sighting to the next keeps the noise up, and the prediction closer."""
+    import antiscatter.tracking.kalman as kalman
+
+    rng = np.random.default_rng(2)
+    t = np.arange(121) * DT
+    truth = np.column_stack([100 + 60 * t + 450 * t ** 2, 300 + 0 * t])
+    seen = truth + rng.normal(0, 0.3, truth.shape)
+
+    def follow():
+        tracker = Tracker()
+        errors = []
+        for f in range(120):
+            tracker.update(Detections([seen[f]], [3.0]), f * DT)
+            errors.append(np.hypot(*(tracker.x[0, :2] + tracker.x[0, 2:4] * DT - truth[f + 1])))
+        return tracker.qa[0], np.mean(errors[60:])
+
+    noise, error = follow()
+    monkeypatch.setattr(kalman, "WHITE_GAIN", 0.0)
+    nis_noise, nis_error = follow()
+    assert noise == pytest.approx(1500.0) and nis_noise < 600.0
+    assert error < 0.9 and nis_error > 1.4 * error
 
 
 def test_a_track_in_the_dark_of_its_own_hole_lives_on_with_max_dark():

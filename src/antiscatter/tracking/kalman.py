@@ -73,13 +73,21 @@ REFOUND = 2.0
 FLUX_SLACK = 10.0
 
 #: memory of a track's averaged normalised innovation squared (see Tracker's accel_floor): the
-#: share of the last average kept at each sighting (0.5 / 0.85: isolated IDF1 within 0.006 over
-#: the scenes there)
+#: share of the last average kept at each sighting
 NIS_MEMORY = 0.7
 
-#: exponent of a track's noise correction per sighting, (averaged NIS / 2) ** NIS_RATE (see
-#: Tracker's accel_floor; 0.5: seed tanks 0.890-0.893, textured 0.958 / 0.959; 0.15: 0.888-0.896)
+#: exponent of a track's noise correction per sighting by its NIS, (averaged NIS / 2) ** NIS_RATE
+#: (see Tracker's accel_floor)
 NIS_RATE = 0.25
+
+#: memory of the averaged lag-1 correlation of a track's normalised innovations (see Tracker's
+#: accel_floor; 0.7 / 0.9: mean isolated IDF1 0.9391 / 0.9395 against 0.9396, prediction error
+#: 0.759 / 0.746 px against 0.749)
+WHITE_MEMORY = 0.8
+
+#: a track's noise is multiplied by 2 ** (WHITE_GAIN x that correlation) per sighting (1.5 / 3:
+#: IDF1 0.9399 / 0.9393, prediction 0.751 / 0.748 px)
+WHITE_GAIN = 2.0
 
 #: most a particle's flux may change between its first two detections for :meth:`Tracker._far`
 #: to take them for one particle (either way; 1.3 / 2: isolated IDF1 the same to 0.0006)
@@ -266,25 +274,34 @@ class Tracker:
         removed.
     accel_floor : the least acceleration noise a track's may fall to, a share of ``accel_noise``
         (default 0.25; 1 = every track's is ``accel_noise``).  Each track's noise is matched to
-        its own motion (covariance matching, Mehra 1972): a new track starts at ``accel_noise``
-        (its motion is not known), and at each sighting its normalised innovation squared --
-        innovation^2 / its variance, summed over both axes, averaging 2 when the filter's spread
-        is right -- is averaged (``NIS_MEMORY``) and the noise multiplied by (average / 2) **
-        ``NIS_RATE``, within [accel_floor, 1] x ``accel_noise``.  A particle drifting steadily
-        gets tight gates and holes, a wobbling bubble keeps wide ones.  A track found again after
-        its hole went, its motion started afresh, starts again at ``accel_noise``.  The report's
-        tank discs move at constant velocity, and one noise for every particle had to cover the
-        bubbles' wobble (400 lost them, see ``accel_noise``).  Isolated-particle IDF1 (the
-        catalogue's scenes and their seeds 2 and 3, the default detector) against 1: seed tank
-        seeds 1 / 2 / 3 0.886 / 0.853 / 0.874 -> 0.894 / 0.898 / 0.906, dense seeds 1 / 2 0.885 /
-        0.895 -> 0.889 / 0.897, bubbles 0.973 / 0.983 -> 0.982 / 0.979, mixed seed 2 0.948 ->
-        0.949, textured 0.963 / 0.963 -> 0.959 / 0.957, fullres 0.962 / 0.956 -> 0.956 / 0.958
-        (0.2 / 0.3: the mean over those 12 0.935 / 0.934 against 0.935; 0.15 with ``accel_noise``
-        2000: seed tanks 0.901-0.910, fullres 0.950 / 0.953).  Raising the noise of a track
-        missed, or at once to ``accel_noise`` on an innovation beyond the chi-square's 99 %, changed
-        the mean by under 0.002.  Twin (pulse, prediction, 5 ms, 1 s, scene seeds 1-6): co-located
-        0.932 / 0.953 removed / kept -> 0.932 / 0.954, dim 0.917 / 0.952 -> 0.917 / 0.953; at 12 cm
-        with probing 0.815 / 0.923 -> 0.816 / 0.924, at 20 ms 0.755 / 0.897 -> 0.760 / 0.898.
+        its own motion by its innovations (covariance matching, Mehra 1972): a new track starts
+        at ``accel_noise`` (its motion is not known), and at each sighting the noise is
+        multiplied by (averaged NIS / 2) ** ``NIS_RATE`` x 2 ** (``WHITE_GAIN`` x the averaged
+        lag-1 correlation of its normalised innovations), within [accel_floor, 1] x
+        ``accel_noise``.  The NIS -- innovation^2 over its variance, summed over both axes --
+        averages 2 when the filter's spread is right, and lower it pulls the noise down; the
+        innovations of an optimal filter are white, and one that lags the motion sees them keep
+        their sign from one sighting to the next, which pushes it up.  A particle drifting
+        steadily gets tight gates and holes, a wobbling bubble or a particle speeding up keeps
+        wide ones.  A track found again after its hole went, its motion started afresh, starts
+        again at ``accel_noise``.  The report's tank discs move at constant velocity, and one
+        noise for every particle had to cover the bubbles' wobble (400 lost them, see
+        ``accel_noise``).  Isolated-particle IDF1 / prediction error +1 frame (the catalogue's
+        scenes, seed tank also seeds 2 and 3, dense, bubbles, textured, fullres also seed 2,
+        mixed seed 2; the default detector) against 1: seed tank seeds 1 / 2 / 3 0.886 / 0.853 /
+        0.874 -> 0.896 / 0.887 / 0.889, prediction 1.38 / 1.60 / 1.29 -> 1.21 / 1.32 / 1.24 px,
+        dense 0.886 / 0.895 -> 0.892 / 0.897, bubbles 0.973 / 0.983 the same (0.68 -> 0.70 px),
+        textured 0.963 / 0.963 -> 0.961 / 0.963, fullres 0.962 / 0.956 -> 0.960 / 0.959, snow
+        0.960 -> 0.965, the mean over these 15 0.934 / 0.801 px -> 0.940 / 0.749 px.  The NIS
+        alone gave IDF1 0.941 but predicted worse than one noise (0.880 px: bubbles 1.14,
+        textured 0.92-0.98 -- its measurement noise, 0.7 px, above the detector's 0.3-0.45, kept
+        the NIS near 0.3 and drove every noise to the floor); raising a missed track's noise, or
+        lifting it to ``accel_noise`` on an innovation beyond the chi-square's 99 %, changed its
+        mean IDF1 by under 0.002.  Floor 0.2 / 0.4 / 0.5 (NIS alone): mean IDF1 0.935 / 0.944 /
+        0.942 over 12 of these.  Twin (pulse, prediction, 5 ms, 1 s, scene seeds 1-12) against 1:
+        co-located 0.927 / 0.955 removed / kept -> 0.928 / 0.956, dim 0.911 / 0.955 -> 0.912 /
+        0.955; at 12 cm with probing 0.816 / 0.924 -> 0.814 / 0.925, at 20 ms 0.745 / 0.898 ->
+        0.754 / 0.900 (the NIS alone 0.744 / 0.899).
     revive_frames : for this many frames after a track seen twice or more is deleted, a
         detection that no live track takes but that lies within the dead track's gate (its
         motion carried on) gets the dead track's id and state back instead of a new one; it
@@ -351,7 +368,11 @@ class Tracker:
         self.flux = np.empty(0)  # the flux of each track's last detection (NaN: not known)
         self.flux_dark = np.empty(0, bool)  # ... taken while its own hole was on it
         self.qa = np.empty(0)  # each track's acceleration noise, px/s^2
-        self.nis = np.empty(0)  # each track's averaged normalised innovation squared
+        # each track's innovation statistics, one row of _INNOVATION's columns: its averaged NIS,
+        # the averaged product of its successive normalised innovations and of their squares (to
+        # normalise it), its last normalised innovation (x, y) -- one array: each array per track
+        # costs its share of every deletion and birth
+        self.innovation = np.empty((0, 5))
         # deleted tracks that may come back: the same arrays, carried forward in time, and
         # the updates each has left
         self._dead: dict[str, np.ndarray] = {}
@@ -425,12 +446,21 @@ class Tracker:
         """Correct the acceleration noise of tracks ``t`` (index array) towards what their
         ``innovation`` (K, 2) px, of variance ``s_pos`` (K, 2) px^2 per axis, shows (see
         ``accel_floor``)."""
-        nis = np.square(innovation) / s_pos
-        average = NIS_MEMORY * self.nis[t] + (1 - NIS_MEMORY) * (nis[:, 0] + nis[:, 1])
-        self.nis[t] = average
+        u = innovation / np.sqrt(s_pos)  # normalised, per axis
+        uu = np.square(u).sum(axis=1)
+        stats = self.innovation[t]
+        average = NIS_MEMORY * stats[:, 0] + (1 - NIS_MEMORY) * uu
+        # an optimal filter's innovations are white: correlated from one sighting to the next, the
+        # filter lags the motion (its noise is too low); the lag-1 correlation of the normalised
+        # innovations, averaged
+        last = stats[:, 3:5]
+        lag = WHITE_MEMORY * stats[:, 1] + (1 - WHITE_MEMORY) * (u * last).sum(axis=1)
+        power = WHITE_MEMORY * stats[:, 2] + (1 - WHITE_MEMORY) * 0.5 * (uu + np.square(last).sum(axis=1))
+        self.innovation[t] = np.column_stack([average, lag, power, u])
+        correlation = lag / np.maximum(power, 1e-12)
         # a consistent filter's NIS averages 2 (chi-square, two degrees of freedom)
-        self.qa[t] = np.clip(self.qa[t] * np.power(average / 2.0, NIS_RATE), self.accel_floor * self.accel_noise,
-                             self.accel_noise)
+        factor = np.power(average / 2.0, NIS_RATE) * np.exp2(WHITE_GAIN * correlation)
+        self.qa[t] = np.clip(self.qa[t] * factor, self.accel_floor * self.accel_noise, self.accel_noise)
 
     def _seen(self, t: np.ndarray) -> None:
         """Tracks ``t`` (index array) seen this frame without a measurement of their own: a hit,
@@ -487,7 +517,8 @@ class Tracker:
         merged[rows[np.repeat(span >= MERGE_GAP, np.diff(np.r_[starts, len(dets)]))]] = True
         return merged
 
-    _FIELDS = ("x", "pp", "pv", "vv", "rr", "ids", "hits", "misses", "dark", "flux", "flux_dark", "qa", "nis")
+    _FIELDS = ("x", "pp", "pv", "vv", "rr", "ids", "hits", "misses", "dark", "flux", "flux_dark", "qa",
+               "innovation")
 
     # ------------------------------------------------------------ update
     def update(self, detections: Detections, timestamp: float, *, unlit: np.ndarray | None = None) -> Tracks:
@@ -544,7 +575,8 @@ class Tracker:
                 self.vv[stale] = self.initial_speed ** 2
                 self.hits[stale] = 1
                 self.qa[stale] = self.accel_noise
-                self.nis[stale] = 2.0
+                self.innovation[stale, 0] = 2.0  # a new track's NIS, and no last innovation
+                self.innovation[stale, 3:5] = 0.0
         if len(unmatched_tracks):
             unmatched_tracks = unmatched_tracks[~merged[unmatched_tracks]]  # hidden in a merge: no miss
             self.misses[unmatched_tracks] += 1
@@ -576,7 +608,7 @@ class Tracker:
                           "hits": np.ones(m, np.int64), "misses": np.zeros(m, np.int64),
                           "dark": np.zeros(m, np.int64), "flux": detections.scores[k],
                           "flux_dark": np.zeros(m, bool), "qa": np.full(m, self.accel_noise),
-                          "nis": np.full(m, 2.0)})
+                          "innovation": np.column_stack([np.full(m, 2.0), np.zeros((m, 4))])})
             detection_ids[k] = new_ids
         return Tracks(self.ids.copy(), self.x[:, :2].copy(), self.x[:, 2:4].copy(), self.x[:, 4].copy(),
                       self.hits >= self.confirm_hits, self.misses.copy(), timestamp, detection_ids)
