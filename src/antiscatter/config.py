@@ -187,7 +187,7 @@ class TrackConfig:
         alike flux are each other's only candidate there: a near particle crosses the view fast
         (0 = off; default 6; off with flux_ratio, see Tracker).
     accel_floor: the least acceleration noise a track's may fall to as it is matched to its own
-        motion, a share of the tracker's noise (1 = one noise for every track; default 0.25, see
+        motion, a share of the tracker's noise (1 = one noise for every track; default 0.1, see
         Tracker).
     """
 
@@ -202,7 +202,7 @@ class TrackConfig:
     merge_reach: float = 0.7
     flux_ratio: float = 6.0
     far_bright: float = 6.0
-    accel_floor: float = 0.25
+    accel_floor: float = 0.1
 
     def __post_init__(self) -> None:
         if not math.isfinite(self.latency_ms):

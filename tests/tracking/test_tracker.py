@@ -398,7 +398,7 @@ def test_a_filter_lagging_an_accelerating_particle_keeps_its_noise_up(monkeypatc
     noise, error = follow()
     monkeypatch.setattr(kalman, "WHITE_GAIN", 0.0)
     nis_noise, nis_error = follow()
-    assert noise == pytest.approx(1500.0) and nis_noise < 600.0
+    assert noise == pytest.approx(1500.0) and nis_noise < 0.7 * noise
     assert error < 0.9 and nis_error > 1.4 * error
 
 
@@ -479,8 +479,12 @@ def test_particles_merged_in_one_detection_keep_their_ids_and_motion():
 
 
 def test_without_merge_handling_the_overtaken_particle_loses_its_id():
-    ida, idb, _ = _overtaking(Tracker(merge_reach=0))
+    # with one noise for every track (the matched noise, steady here, carries both tracks through
+    # this clean overtaking on their predictions alone: both ways 2 ids)
+    ida, idb, _ = _overtaking(Tracker(merge_reach=0, accel_floor=1.0))
     assert len(set(ida) | set(idb)) == 3  # one of them is born again after the merge
+    ida, idb, _ = _overtaking(Tracker(merge_reach=0.7, accel_floor=1.0))
+    assert len(set(ida) | set(idb)) == 2
 
 
 def test_two_tracks_on_one_particle_are_no_merge():
