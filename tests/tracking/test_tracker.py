@@ -100,6 +100,7 @@ def test_a_track_found_after_its_hole_went_keeps_its_id_but_starts_its_motion_af
     tracks = tracker.update(Detections([[174.0, 200.0]], [3.0]), 16 * DT)
     assert tracks.detection_ids.tolist() == [first]
     assert not tracks.confirmed[0] and np.allclose(tracks.velocities[0], 0.0)
+    assert tracker.qa[0] == tracker.accel_noise  # its motion not known again: a new track's noise
     hole = tracker.holes(16 * DT + 0.02)  # seen once since: its hole where it was seen, not moved on
     assert np.allclose(hole.centres[0], [174.0, 200.0], atol=0.5)
     # within max_misses the motion is kept: the hole moves on
