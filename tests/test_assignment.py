@@ -114,3 +114,36 @@ def test_bounds_keep_a_pair_out_unless_the_value_fits():
     assert matches.tolist() == [[1, 1]] and free_truth.tolist() == [0] and free_dets.tolist() == [0]
     matches, _, _ = match(truth, np.array([3.0, 3.0]), dets, bounds=(low, high, np.array([np.nan, 100.0])))
     assert matches.tolist() == [[0, 0], [1, 1]]  # a NaN value checks nothing either
+
+
+def _chain(offset: float = 0.0):
+    # t0 has b at 1 px; t1 (a wide gate) has b at 25 and c, 27 px from b, too far for t0's gate
+    truth = np.array([[0.0, 0.0], [25.0, 0.0]]) + offset
+    dets = np.array([[1.0, 0.0], [-26.0, 0.0]]) + offset  # b, c
+    return truth, np.array([28.0, 30.0]), dets
+
+
+def test_a_miss_cost_keeps_a_long_chain_of_pairs_from_buying_one_more_match():
+    truth, gate, dets = _chain()
+    m, ut, ud = match(truth, gate, dets)  # the most matches first: t1-b, t0-c
+    assert sorted(map(tuple, m.tolist())) == [(0, 1), (1, 0)]
+    m, ut, ud = match(truth, gate, dets, miss_cost=30.0)  # 27 + 24 px for one more match: no
+    assert m.tolist() == [[0, 0]] and ut.tolist() == [1] and ud.tolist() == [1]
+    m, _, _ = match(truth, gate, dets, miss_cost=60.0)  # worth it at 60 px a miss
+    assert sorted(map(tuple, m.tolist())) == [(0, 1), (1, 0)]
+
+
+def test_a_miss_cost_leaves_an_uncontested_pair_matched_within_its_gate():
+    m, _, _ = match(np.array([[0.0, 0.0]]), np.array([50.0]), np.array([[45.0, 0.0]]), miss_cost=30.0)
+    assert m.tolist() == [[0, 0]]
+
+
+def test_a_miss_cost_gives_the_same_answer_in_crowds_as_in_small_problems():
+    # 300 chains far apart: too many for one dense problem, solved as one sparse problem
+    truth = np.vstack([_chain(200.0 * i)[0] for i in range(300)])
+    dets = np.vstack([_chain(200.0 * i)[2] for i in range(300)])
+    gate = np.tile([28.0, 30.0], 300)
+    m, ut, ud = match(truth, gate, dets, miss_cost=30.0)
+    assert m.tolist() == [[2 * i, 2 * i] for i in range(300)]
+    m, _, _ = match(truth, gate, dets)
+    assert len(m) == 600

@@ -24,8 +24,8 @@ def gates(truth_radii: np.ndarray, *, min_gate: float = 2.0, scale: float = 1.0)
 
 
 def match(truth_centres: np.ndarray, truth_gates: np.ndarray, det_centres: np.ndarray, *,
-          neighbours: int = 8, bounds: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+          neighbours: int = 8, bounds: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+          miss_cost: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Optimal one-to-one assignment on centre distance, gated per truth particle.
 
     Only pairs closer than the truth particle's gate may match; among those the
@@ -73,7 +73,7 @@ def match(truth_centres: np.ndarray, truth_gates: np.ndarray, det_centres: np.nd
     if len(multi):
         ut, ti = _compact(rows[multi], nt)
         ud, di = _compact(cols[multi], nd)
-    if len(multi) and len(ut) * len(ud) <= 40_000:
+    if len(multi) and len(ut) * len(ud) <= 40_000 and miss_cost <= 0:
         # the groups are independent: one small dense problem solves them all at once
         big = dist[multi].sum() + 1.0  # any infeasible pair costs more than all feasible ones
         cost = np.full((len(ut), len(ud)), big)
@@ -82,13 +82,24 @@ def match(truth_centres: np.ndarray, truth_gates: np.ndarray, det_centres: np.nd
         feasible = cost[a, b] < big
         pair_rows.append(ut[a[feasible]])
         pair_cols.append(ud[b[feasible]])
+    elif len(multi) and len(ut) * (len(ud) + len(ut)) <= 40_000:
+        # the same with a way out for each truth point at ``miss_cost``
+        nu, nv = len(ut), len(ud)
+        big = dist[multi].sum() + nu * miss_cost + 1.0
+        cost = np.full((nu, nv + nu), big)
+        cost[ti, di] = dist[multi]
+        cost[np.arange(nu), nv + np.arange(nu)] = miss_cost
+        a, b = linear_sum_assignment(cost)
+        real = b < nv
+        pair_rows.append(ut[a[real]])
+        pair_cols.append(ud[b[real]])
     elif len(multi):
         # too many for one dense problem (crowds of hundreds): one sparse problem, each truth point
         # with a way out -- a column of its own at a cost above all real pairs together, so the
-        # most matches are made first and the shortest among them
+        # most matches are made first and the shortest among them (or at ``miss_cost``)
         nu, nv = len(ut), len(ud)
-        big = dist[multi].sum() + 1.0
-        graph = csr_matrix((np.concatenate([dist[multi] + _NONZERO, np.full(nu, big)]),
+        way_out = miss_cost if miss_cost > 0 else dist[multi].sum() + 1.0
+        graph = csr_matrix((np.concatenate([dist[multi] + _NONZERO, np.full(nu, way_out)]),
                             (np.concatenate([ti, np.arange(nu)]), np.concatenate([di, nv + np.arange(nu)]))),
                            shape=(nu, nv + nu))
         a, b = min_weight_full_bipartite_matching(graph)

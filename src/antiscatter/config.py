@@ -189,6 +189,9 @@ class TrackConfig:
     accel_floor: the least acceleration noise a track's may fall to as it is matched to its own
         motion, a share of the tracker's noise (1 = one noise for every track; default 0.1, see
         Tracker).
+    miss_cost: px (at 800 px wide) a track left without a detection costs where tracks compete
+        for detections: no chain of longer pairs to match one more (0 = the most matches first;
+        default 30, see Tracker).
     """
 
     enabled: bool = False
@@ -203,6 +206,7 @@ class TrackConfig:
     flux_ratio: float = 6.0
     far_bright: float = 6.0
     accel_floor: float = 0.1
+    miss_cost: float = 30.0
 
     def __post_init__(self) -> None:
         if not math.isfinite(self.latency_ms):
@@ -225,6 +229,8 @@ class TrackConfig:
             raise ValueError(f"far_bright: got {self.far_bright}, allowed 0 (off) or a number >= 1")
         if not (math.isfinite(self.accel_floor) and 0 < self.accel_floor <= 1):
             raise ValueError(f"accel_floor: got {self.accel_floor}, allowed a share of the noise, > 0 and <= 1")
+        if not (math.isfinite(self.miss_cost) and self.miss_cost >= 0):
+            raise ValueError(f"miss_cost: got {self.miss_cost}, allowed a distance in px >= 0 (0 = the most matches first)")
 
 
 STRATEGIES = ("none", "dim", "pulse", "flash", "coast")

@@ -712,7 +712,8 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
                           # probing: a new hole spans its line, and a particle's light is not known
                           flow_holes=config.light.depth != "probe",
                           flux_ratio=tc.flux_ratio if config.light.depth != "probe" else 0.0,
-                          far_bright=tc.far_bright, accel_floor=tc.accel_floor)
+                          far_bright=tc.far_bright, accel_floor=tc.accel_floor,
+                          miss_cost=tc.miss_cost)
     if tracker is None:
         timed.remove("Tracking Duration (s)")
     summary.durations = {c: RunningStats() for c in timed}

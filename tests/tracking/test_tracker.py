@@ -279,6 +279,21 @@ def test_gating_prevents_absurd_matches():
     assert tracks.detection_ids[0] != first  # a new track, not a 400 px jump
 
 
+@pytest.mark.parametrize("miss_cost", [0.0, 30.0])
+def test_a_track_seen_once_does_not_take_a_contested_stray_from_afar(miss_cost):
+    # a particle held still; another seen once 50 px away, three frames ago (its gate has grown
+    # past 50 px); then a stray detection 3.5 px beside the held one, inside both gates.  Matching
+    # the most first gives the stray to the old sighting, 50 px off; a miss costing 30 px does not
+    # (it is left to a new track), and the held particle keeps its track either way
+    tracker = Tracker(frame_size=(800, 600), miss_cost=miss_cost)
+    for f in range(8):
+        centres = [[100.0, 100.0]] + ([[150.0, 100.0]] if f == 4 else []) + ([[96.5, 100.0]] if f == 7 else [])
+        tracks = tracker.update(Detections(centres, np.full(len(centres), 3.0)), f * DT)
+    held, stray = tracks.detection_ids
+    assert held == 1
+    assert stray == (2 if miss_cost == 0 else 3)
+
+
 def test_coasting_keeps_the_hole_on_the_predicted_path():
     tracker = Tracker(max_misses=4)
     for f in range(10):
