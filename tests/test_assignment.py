@@ -147,3 +147,27 @@ def test_a_miss_cost_gives_the_same_answer_in_crowds_as_in_small_problems():
     assert m.tolist() == [[2 * i, 2 * i] for i in range(300)]
     m, _, _ = match(truth, gate, dets)
     assert len(m) == 600
+
+
+def test_a_miss_cost_gives_the_optimum_of_a_way_out_for_every_point():
+    # against the textbook form: each truth point with a column of its own at the miss cost (the
+    # pairs that are the only candidate of both their ends matched as they are, as match does)
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        nt, nd = rng.integers(1, 40, 2)
+        truth, dets = rng.uniform(0, 60, (nt, 2)), rng.uniform(0, 60, (nd, 2))
+        gate, miss = rng.uniform(2, 25, nt), float(rng.uniform(1, 40))
+        m, _, _ = match(truth, gate, dets, miss_cost=miss, neighbours=nd)
+        d = np.hypot(*(truth[:, None, :] - dets[None, :, :]).transpose(2, 0, 1))
+        inside = d <= gate[:, None]
+        alone = inside & (inside.sum(1) == 1)[:, None] & (inside.sum(0) == 1)[None, :]
+        rows, cols = np.flatnonzero(~alone.any(1)), np.flatnonzero(~alone.any(0))
+        big = 1e9
+        cost = np.full((len(rows), len(cols) + len(rows)), big)
+        cost[:, :len(cols)] = np.where(inside[np.ix_(rows, cols)], d[np.ix_(rows, cols)], big)
+        cost[np.arange(len(rows)), len(cols) + np.arange(len(rows))] = miss
+        a, b = linear_sum_assignment(cost)
+        best = cost[a, b].sum() + d[alone].sum()
+        got = d[m[:, 0], m[:, 1]].sum() + miss * (nt - len(m))
+        assert np.all(inside[m[:, 0], m[:, 1]])
+        assert got == pytest.approx(best, abs=1e-6)
