@@ -81,16 +81,14 @@ def match(truth_centres: np.ndarray, truth_gates: np.ndarray, det_centres: np.nd
             # columns the square solver must fill anyway take those (the same optimum as a way out
             # for each point, at the size of the problem itself: on the seed tank's crowds that
             # was 1.3x the tracker's time)
-            cost = np.zeros((len(ut), len(ud)))
+            cost, worthless = np.zeros((len(ut), len(ud))), 0.0
             cost[ti, di] = np.minimum(dist[multi] - miss_cost, 0.0)
-            a, b = linear_sum_assignment(cost)
-            feasible = cost[a, b] < 0
         else:
-            big = dist[multi].sum() + 1.0  # any infeasible pair costs more than all feasible ones
-            cost = np.full((len(ut), len(ud)), big)
+            worthless = dist[multi].sum() + 1.0  # any infeasible pair costs more than all feasible ones
+            cost = np.full((len(ut), len(ud)), worthless)
             cost[ti, di] = dist[multi]
-            a, b = linear_sum_assignment(cost)
-            feasible = cost[a, b] < big
+        a, b = linear_sum_assignment(cost)
+        feasible = cost[a, b] < worthless
         pair_rows.append(ut[a[feasible]])
         pair_cols.append(ud[b[feasible]])
     elif len(multi):
