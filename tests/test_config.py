@@ -73,6 +73,7 @@ fps = 30
     ("[track]\nfar_bright = 0.5\n", "run.toml: track.far_bright: got 0.5, allowed 0 (off) or a number >= 1"),
     ("[track]\naccel_floor = 0\n", "run.toml: track.accel_floor: got 0.0, allowed a share of the noise, > 0 and <= 1"),
     ("[track]\nmiss_cost = -1\n", "run.toml: track.miss_cost: got -1.0, allowed a distance in px >= 0 (0 = the most matches first)"),
+    ("[track]\nflux_cost = -1\n", "run.toml: track.flux_cost: got -1.0, allowed a distance in px >= 0 (0 = distance alone)"),
     ("[light]\nrest = -1\n", "run.toml: light.rest: got -1, allowed a whole number of frames >= 0"),
     ("[light]\nrest = 1.5\n", "run.toml: light.rest: got 1.5, allowed an integer"),
     ("[track]\nmax_misses = 6\nkeep_misses = 4\n", "run.toml: track.keep_misses: got 4, allowed >= max_misses (6)"),

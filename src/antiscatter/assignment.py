@@ -5,6 +5,8 @@ Used to match detections to truth (evaluation) and to tracks (tracking).
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.sparse import csr_matrix
@@ -25,7 +27,8 @@ def gates(truth_radii: np.ndarray, *, min_gate: float = 2.0, scale: float = 1.0)
 
 def match(truth_centres: np.ndarray, truth_gates: np.ndarray, det_centres: np.ndarray, *,
           neighbours: int = 8, bounds: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-          miss_cost: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+          miss_cost: float = 0.0, penalty: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Optimal one-to-one assignment on centre distance, gated per truth particle.
 
     Only pairs closer than the truth particle's gate may match; among those the
@@ -63,6 +66,8 @@ def match(truth_centres: np.ndarray, truth_gates: np.ndarray, det_centres: np.nd
         return np.empty((0, 2), np.int64), np.arange(nt), np.arange(nd)
     truth_gates = np.asarray(truth_gates, dtype=np.float64)
     rows, cols, dist = _candidates(truth_centres, truth_gates, det_centres, min(neighbours, nd), bounds)
+    if penalty is not None and len(rows):
+        dist = dist + penalty(rows, cols)
     if len(rows) == 0:
         return np.empty((0, 2), np.int64), np.arange(nt), np.arange(nd)
     rows, cols = rows.astype(np.intp), cols.astype(np.int64)

@@ -192,6 +192,9 @@ class TrackConfig:
     miss_cost: px (at 800 px wide) a track left without a detection costs where tracks compete
         for detections: no chain of longer pairs to match one more (0 = the most matches first;
         default 30, see Tracker).
+    flux_cost: px (at 800 px wide) a track's pair costs per unit of |log| of the change of its
+        flux, where tracks compete for detections: of two near particles, the one alike in
+        brightness is taken (0 = distance alone; default 16; off with flux_ratio, see Tracker).
     """
 
     enabled: bool = False
@@ -207,6 +210,7 @@ class TrackConfig:
     far_bright: float = 6.0
     accel_floor: float = 0.1
     miss_cost: float = 30.0
+    flux_cost: float = 16.0
 
     def __post_init__(self) -> None:
         if not math.isfinite(self.latency_ms):
@@ -231,6 +235,8 @@ class TrackConfig:
             raise ValueError(f"accel_floor: got {self.accel_floor}, allowed a share of the noise, > 0 and <= 1")
         if not (math.isfinite(self.miss_cost) and self.miss_cost >= 0):
             raise ValueError(f"miss_cost: got {self.miss_cost}, allowed a distance in px >= 0 (0 = the most matches first)")
+        if not (math.isfinite(self.flux_cost) and self.flux_cost >= 0):
+            raise ValueError(f"flux_cost: got {self.flux_cost}, allowed a distance in px >= 0 (0 = distance alone)")
 
 
 STRATEGIES = ("none", "dim", "pulse", "flash", "coast")

@@ -713,7 +713,7 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
                           flow_holes=config.light.depth != "probe",
                           flux_ratio=tc.flux_ratio if config.light.depth != "probe" else 0.0,
                           far_bright=tc.far_bright, accel_floor=tc.accel_floor,
-                          miss_cost=tc.miss_cost)
+                          miss_cost=tc.miss_cost, flux_cost=tc.flux_cost)
     if tracker is None:
         timed.remove("Tracking Duration (s)")
     summary.durations = {c: RunningStats() for c in timed}

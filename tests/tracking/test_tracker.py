@@ -294,6 +294,39 @@ def test_a_track_seen_once_does_not_take_a_contested_stray_from_afar(miss_cost):
     assert stray == (2 if miss_cost == 0 else 3)
 
 
+@pytest.mark.parametrize("flux_cost", [0.0, 16.0])
+def test_of_two_near_detections_a_track_takes_the_one_alike_in_brightness(flux_cost):
+    # a particle held still with a flux of 100; then its own detection 1.5 px off and a newcomer
+    # four times as bright 1 px off, both inside its gate and within flux_ratio.  By distance
+    # alone the track takes the newcomer; a flux cost keeps it on its own particle, and the
+    # newcomer gets a new track
+    tracker = Tracker(frame_size=(800, 600), flux_cost=flux_cost)
+    for f in range(5):
+        tracks = tracker.update(Detections([[100.0, 100.0]], [3.0], scores=[100.0]), f * DT)
+    held = int(tracks.ids[0])
+    tracks = tracker.update(Detections([[101.5, 100.0], [99.0, 100.0]], [3.0, 3.0], scores=[100.0, 400.0]), 5 * DT)
+    own, newcomer = tracks.detection_ids.tolist()
+    assert (own, newcomer != held) == ((held, True) if flux_cost else (held + 1, False))
+
+
+def test_a_flux_cost_is_not_charged_to_a_track_under_its_own_hole():
+    # the particle dimmed to a fifth under its hole, its faint detection 1 px off; a stray as
+    # bright as the particle was lit, 2 px off.  Charged by flux the track would take the stray;
+    # under its hole its light says nothing, and the nearer, its own, is taken
+    tracker = Tracker(frame_size=(800, 600), flux_cost=16.0)
+    for f in range(5):
+        tracks = tracker.update(Detections([[100.0, 100.0]], [3.0], scores=[100.0]), f * DT)
+    held = int(tracks.ids[0])
+    tracks = tracker.update(Detections([[101.0, 100.0], [98.0, 100.0]], [3.0, 3.0], scores=[20.0, 100.0]), 5 * DT,
+                            unlit=np.array([held]))
+    assert tracks.detection_ids[0] == held
+    lit = Tracker(frame_size=(800, 600), flux_cost=16.0)  # lit, the same detections: the stray is taken
+    for f in range(5):
+        lit.update(Detections([[100.0, 100.0]], [3.0], scores=[100.0]), f * DT)
+    tracks = lit.update(Detections([[101.0, 100.0], [98.0, 100.0]], [3.0, 3.0], scores=[20.0, 100.0]), 5 * DT)
+    assert tracks.detection_ids[1] == held
+
+
 def test_coasting_keeps_the_hole_on_the_predicted_path():
     tracker = Tracker(max_misses=4)
     for f in range(10):
