@@ -753,6 +753,8 @@ class Tracker:
             # the logs once per track and detection, not per pair; the slack as in the flux check
             mine = weight * np.log(np.where(under | self.flux_dark, np.nan, self.flux) + FLUX_SLACK)
             theirs = weight * np.log(detections.scores + FLUX_SLACK)
+        if not (np.isfinite(mine).any() and np.isfinite(theirs).any()):  # (``seed``'s NaN scores)
+            return None
 
         def penalty(tracks: np.ndarray, dets: np.ndarray) -> np.ndarray:
             return np.nan_to_num(np.abs(mine[tracks] - theirs[dets]), nan=0.0, posinf=0.0)
