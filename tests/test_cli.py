@@ -299,6 +299,22 @@ def test_track_revive_frames_or_keep_misses_give_a_particle_back_its_id_after_a_
     assert len(rows) == 9 and len({r["track_id"] for r in rows}) == identities
 
 
+def test_run_takes_the_trackers_flux_cost_from_the_config(tmp_path, cli):
+    # the report's crowded tank: with the flux cost off, tracks compete on distance alone and the
+    # identities come out otherwise; the default is the documented 16 px
+    def ids(body):
+        config = tmp_path / "c.toml"
+        config.write_text("[track]\nenabled = true\n" + body)
+        out = tmp_path / "d.csv"
+        result = cli("run", "--frames", "30", "--config", str(config), "--output", "none", "--detections", str(out))
+        assert result.code == 0, result.err
+        return [(r["frame"], r["x"], r["y"], r["track_id"]) for r in csv.DictReader(out.open())]
+
+    default, off, explicit = ids(""), ids("flux_cost = 0\n"), ids("flux_cost = 16\n")
+    assert [r[:3] for r in off] == [r[:3] for r in default]  # the same detections
+    assert off != default and explicit == default
+
+
 @pytest.mark.parametrize("width", [800, 1600])
 def test_run_scales_the_trackers_motion_to_the_frame_width(tmp_path, cli, width):
     frames = tmp_path / "frames"
