@@ -1589,7 +1589,7 @@ def _separate(comp: np.ndarray, py: np.ndarray, px: np.ndarray, value: np.ndarra
 
 #: a shape's two distance-transform peaks are two discs when the dip between them is at least this
 #: share of the dip two overlapping discs of their radii, that far apart, make (see _disc_neck_dip)
-DISC_DIP_SHARE = 0.5
+DISC_DIP_SHARE = 0.25
 #: ... and at least this many pixels: the distance transform's own steps are a few tenths of one
 DISC_DIP_FLOOR = 0.2
 #: ... in a core of which this share or more lies at the plateau (``_PLATEAU_SHARE`` of its peak)
@@ -1613,14 +1613,15 @@ def _disc_neck_dip(low: np.ndarray, high: np.ndarray, apart: np.ndarray, dip: np
     less; a smaller disc within the larger (no chord) is one.  Only in flat cores (``DISC_PLATEAU``
     of them at the plateau): a bubble's rim and highlight make necks of disc pairs too, and split
     so fullres lost 0.001 (31 false alarms over its 60 frames, pieces of bright bubbles).  With
-    the nearly compact flat cores looked at as well (``FLAT_COMPACT``, see :func:`_necked`): seed
-    tank F1 0.811 -> 0.858 (recall 0.688 -> 0.762, precision 0.986 -> 0.982; its seeds 2 / 3
-    0.795 / 0.803 -> 0.847 / 0.851), isolated-particle IDF1 0.930 -> 0.940 (seeds 2 / 3 0.931 /
-    0.934 -> 0.950 / 0.940); bubbles, snow, dense
-    and fullres within 20 detections of before, sand, mixed, survey, textured and the MSRB
+    the nearly compact flat cores looked at as well (``FLAT_COMPACT``, see :func:`_necked`), share
+    0.25: seed tank F1 0.811 -> 0.863 (recall 0.688 -> 0.770, precision 0.986 -> 0.981; its seeds
+    2 / 3 0.795 / 0.803 -> 0.853 / 0.857), isolated-particle IDF1 0.930 -> 0.943 (seeds 2 / 3
+    0.931 / 0.934 -> 0.951 / 0.937); bubbles, snow, dense and fullres within 25 detections of
+    before, sand, mixed, survey, textured and the MSRB
     photographs the same; the seed tank's detector +8 % a frame (more clusters through the
-    full-resolution shape test), the mixed scene's the same.  Share 0.3 / 0.7 (flat cores of
-    compactness under 0.8 only): seed 0.849 / 0.839 against 0.845; any dip at all, in any core
+    full-resolution shape test), the mixed scene's the same.  Share 0.5 / 0.35 / 0.15: seed
+    0.858 / 0.862 / 0.863 (seeds 2 and 3 alike), the floor decides below 0.25; 0.3 / 0.5 / 0.7
+    in every core (flat or not) of compactness under 0.8: 0.849 / 0.845 / 0.839; any dip at all, in any core
     (0.03 px): seed 0.855 but sand, mixed and survey -0.001, fullres -0.003; compactness up to 0.9
     / 0.94 for every core, not the flat ones alone: seed 0.858 / 0.861, but sand, mixed and
     fullres 9-16 false alarms more (the strict test splitting their compact cores).  A plateau
