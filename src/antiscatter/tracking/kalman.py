@@ -748,6 +748,8 @@ class Tracker:
         its particle's), nor where a flux is not known.  None when off."""
         if not self.flux_cost or not self.flux_ratio or len(self.flux) == 0 or len(detections) == 0:
             return None
+        if np.isnan(detections.scores[0]) and not np.isfinite(detections.scores).any():  # (seed's scores)
+            return None
         weight = self.flux_cost * self.scale
         with np.errstate(invalid="ignore", divide="ignore"):  # (a flux not known: no penalty)
             # the logs once per track and detection, not per pair; the slack as in the flux check
