@@ -139,12 +139,13 @@ def test_a_penalty_reorders_competing_pairs_but_not_the_gate():
     gate = np.array([6.0, 6.0])
     m, _, _ = match(truth, gate, dets)  # by distance: t0-d0 (1), t1-d1 (0.5)
     assert m.tolist() == [[0, 0], [1, 1]]
-    # the straight pairs cost 10 px more each: the crossed ones (3.5 + 3) are cheaper
-    swap = lambda rows, cols: np.where(rows == cols, 10.0, 0.0)  # noqa: E731
+    # the straight pairs cost |0 - 10| = 10 px more each, the crossed ones nothing: those (3.5 + 3)
+    # are cheaper
+    swap = (np.array([0.0, 10.0]), np.array([10.0, 0.0]))
     m, _, _ = match(truth, gate, dets, penalty=swap)
     assert m.tolist() == [[0, 1], [1, 0]]
     # a penalty does not widen a gate: a detection beyond it is not matched however cheap
-    m, ut, ud = match(truth[:1], np.array([2.0]), dets[1:], penalty=lambda r, c: np.full(len(r), -5.0))
+    m, ut, ud = match(truth[:1], np.array([2.0]), dets[1:], penalty=(np.array([5.0]), np.array([5.0])))
     assert len(m) == 0 and ut.tolist() == [0] and ud.tolist() == [0]
 
 

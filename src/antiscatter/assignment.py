@@ -5,8 +5,6 @@ Used to match detections to truth (evaluation) and to tracks (tracking).
 
 from __future__ import annotations
 
-from typing import Callable
-
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.sparse import csr_matrix
@@ -27,7 +25,7 @@ def gates(truth_radii: np.ndarray, *, min_gate: float = 2.0, scale: float = 1.0)
 
 def match(truth_centres: np.ndarray, truth_gates: np.ndarray, det_centres: np.ndarray, *,
           neighbours: int = 8, bounds: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-          miss_cost: float = 0.0, penalty: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
+          miss_cost: float = 0.0, penalty: tuple[np.ndarray, np.ndarray] | None = None
           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Optimal one-to-one assignment on centre distance, gated per truth particle.
 
@@ -52,6 +50,10 @@ def match(truth_centres: np.ndarray, truth_gates: np.ndarray, det_centres: np.nd
     bounds : (low (T,), high (T,), values (D,)), or None: a pair may match only when the
         detection's value lies in the truth point's [low, high] as well (the tracker's check on
         a particle's flux); a NaN value or bound checks nothing.
+    miss_cost : pixels a point left unmatched costs where points compete (0: the most matches first).
+    penalty : (a (T,), b (D,)) pixels, or None: |a[t] - b[d]| is added to the distance of each
+        candidate pair where pairs compete (a NaN adds nothing; the tracker's cost of a change in
+        a particle's flux, as scaled logs); the gate is still on distance alone.
 
     Returns
     -------
@@ -67,7 +69,7 @@ def match(truth_centres: np.ndarray, truth_gates: np.ndarray, det_centres: np.nd
     truth_gates = np.asarray(truth_gates, dtype=np.float64)
     rows, cols, dist = _candidates(truth_centres, truth_gates, det_centres, min(neighbours, nd), bounds)
     if penalty is not None and len(rows):
-        dist = dist + penalty(rows, cols)
+        dist = dist + np.nan_to_num(np.abs(penalty[0][rows] - penalty[1][cols]), nan=0.0, posinf=0.0)
     if len(rows) == 0:
         return np.empty((0, 2), np.int64), np.arange(nt), np.arange(nd)
     rows, cols = rows.astype(np.intp), cols.astype(np.int64)

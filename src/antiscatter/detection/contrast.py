@@ -1391,7 +1391,7 @@ def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarr
     shaped = counts < 2  # the components whose shape is looked at: those the intensity did not split,
     if fine:  # and flat ones, whose intensity maxima are where pooling cut their plateau's edges
         shaped |= np.bincount(pl[pw >= _PLATEAU_SHARE * top[pl]], minlength=n) >= _PLATEAU
-    necked, nearly = _necked(pl, px, py, pw, n, shaped, peak=top, nearly=True)
+    necked, nearly = _necked(pl, px, py, pw, n, shaped, peak=top)
     if len(necked) or len(nearly):
         flat_c, flat_y, flat_x = _split_flat(pl, px, py, pw, n, np.concatenate([necked, nearly]), full,
                                              discs_only=nearly)
@@ -1495,7 +1495,7 @@ def _group_max(lab: np.ndarray, n: int, *values: np.ndarray, fast: bool | None =
 
 
 def _necked(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, n: int,
-            candidates: np.ndarray, peak: np.ndarray | None = None, nearly: bool = False):
+            candidates: np.ndarray, peak: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Components (among ``candidates``, bool per label) whose core -- the pixels
     above half the peak -- has ``_MIN_CORE`` pixels or more and is not compact:
     area / (2 pi mean squared distance from its centroid) below 0.8, where a disc
@@ -1504,7 +1504,7 @@ def _necked(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, n
     components it names; ``peak``: their highest weights, when known.
     The cores are counted first, so the moments are taken of the few components with a
     core that large (most of a frame's are specks), the wholes' and the cores' in one pass
-    (the cores as labels n..2n-1).  ``nearly``: also return, apart, the components whose core is
+    (the cores as labels n..2n-1).  Returns those, and apart the components whose core is
     compact up to ``FLAT_COMPACT``: two white discs a radius apart make a core of 0.91-0.93
     (radius 6 and 8 px), split only at such discs' necks (:func:`_split_flat`)."""
     top, = _group_max(lab, n, weight) if peak is None else (peak,)
@@ -1512,8 +1512,7 @@ def _necked(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, n
     core_area = np.bincount(lab[core], minlength=n)
     wanted = candidates & (core_area >= _MIN_CORE)
     if not wanted.any():
-        none = np.empty(0, np.intp)
-        return (none, none) if nearly else none
+        return np.empty(0, np.intp), np.empty(0, np.intp)
     sel = np.flatnonzero(wanted[lab])
     inner = sel[core[sel]]
     both = np.concatenate([lab[sel], lab[inner] + n])
@@ -1523,8 +1522,6 @@ def _necked(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, n
     disc = area[:n] >= 0.95 * 2 * np.pi * np.maximum(msd[:n], 1e-9)  # whole components
     compactness = area[n:] / (2 * np.pi * np.maximum(msd[n:], 1e-9))  # their cores'
     necked = wanted & ~disc & (compactness < 0.8)
-    if not nearly:
-        return np.flatnonzero(necked)
     return np.flatnonzero(necked), np.flatnonzero(wanted & ~disc & ~necked & (compactness < FLAT_COMPACT))
 
 

@@ -24,7 +24,6 @@ identity for up to ``keep_misses``; a tentative one survives
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -409,7 +408,7 @@ class Tracker:
         self.far_bright = float(far_bright)
         self.accel_floor = float(accel_floor)
         self.miss_cost = float(miss_cost)  # px at 800 px wide, scaled as the motion settings
-        self.flux_cost = float(flux_cost)  # px at 800 px wide per unit of |log flux ratio|, scaled so
+        self.flux_cost = float(flux_cost)  # px at 800 px wide per unit of |log flux ratio|, scaled as those
         self.flux = np.empty(0)  # the flux of each track's last detection (NaN: not known)
         self.flux_dark = np.empty(0, bool)  # ... taken while its own hole was on it
         self.qa = np.empty(0)  # each track's acceleration noise, px/s^2
@@ -674,13 +673,13 @@ class Tracker:
 
     def _associate(self, detections: Detections, is_lost: np.ndarray,
                    flux: tuple[np.ndarray, np.ndarray] | None = None,
-                   penalty: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
+                   penalty: tuple[np.ndarray, np.ndarray] | None = None
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(matches (K, 2) of (track, detection), unmatched tracks, unmatched detections).
 
         flux: (low, high) per track, the detections' flux each may take (:meth:`_flux_bounds`),
-        or None.  penalty: ``penalty(tracks, detections)`` (index arrays of all tracks and all
-        detections) -> pixels added to those pairs' distances (:meth:`_flux_penalty`), or None.
+        or None.  penalty: (per track, per detection) pixels whose difference a pair costs
+        (:meth:`_flux_penalty`), or None.
 
         Tracks with a hole are matched first; the lost ones (``is_lost``, :meth:`_lost`)
         kept for their identity only take what is left.  A lost track's gate has grown wide over
@@ -694,17 +693,16 @@ class Tracker:
         def bounds(rows, values):  # the flux check of tracks ``rows`` on detections of ``values``
             return None if flux is None else (flux[0][rows], flux[1][rows], values)
 
-        def cost(tracks, dets):  # the penalty of a sub-problem, its rows and columns renumbered
-            return None if penalty is None else lambda r, c: penalty(tracks[r], dets[c])
+        def cost(rows, dets):  # the penalty of tracks ``rows`` against detections ``dets``
+            return None if penalty is None else (penalty[0][rows], penalty[1][dets])
 
         if not is_lost.any():
-            every = np.arange(len(self.x))
             return match(self.x[:, :2], gates, detections.centres, bounds=bounds(slice(None), scores), miss_cost=miss,
-                         penalty=cost(every, np.arange(len(detections))))
+                         penalty=penalty)
         live, lost = np.flatnonzero(~is_lost), np.flatnonzero(is_lost)
         first, free_live, free_dets = match(self.x[live, :2], gates[live], detections.centres,
                                             bounds=bounds(live, scores), miss_cost=miss,
-                                            penalty=cost(live, np.arange(len(detections))))
+                                            penalty=cost(live, slice(None)))
         second, free_lost, free_dets2 = match(self.x[lost, :2], gates[lost], detections.centres[free_dets],
                                               bounds=bounds(lost, scores[free_dets]), miss_cost=miss,
                                               penalty=cost(lost, free_dets))
@@ -740,28 +738,23 @@ class Tracker:
         alone = (np.bincount(rows, minlength=len(t))[rows] == 1) & (np.bincount(cols, minlength=len(k))[cols] == 1)
         return np.column_stack([t[rows[alone]], k[cols[alone]]]).astype(np.int64)
 
-    def _flux_penalty(self, detections: Detections,
-                      under: np.ndarray) -> Callable[[np.ndarray, np.ndarray], np.ndarray] | None:
-        """``penalty(tracks, detections)`` for :meth:`_associate`: ``flux_cost`` pixels per unit of
-        |log| of the ratio of a detection's flux to the track's last, where tracks compete; none for
-        a track whose own hole is on its particle now or was at its last sighting (its light is not
-        its particle's), nor where a flux is not known.  None when off."""
+    def _flux_penalty(self, detections: Detections, under: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """(per track, per detection) for :meth:`_associate`: ``flux_cost`` (scaled) times the log
+        of each flux plus ``FLUX_SLACK``, so a pair costs ``flux_cost`` pixels per unit of |log| of
+        their ratio where tracks compete; NaN (no cost) for a track whose own hole is on its
+        particle now or was at its last sighting (its light is not its particle's) and where a
+        flux is not known.  None when off or no flux is known (``seed``'s NaN scores)."""
         if not self.flux_cost or not self.flux_ratio or len(self.flux) == 0 or len(detections) == 0:
             return None
-        if np.isnan(detections.scores[0]) and not np.isfinite(detections.scores).any():  # (seed's scores)
+        scores = detections.scores
+        if not np.isfinite(scores).any():
             return None
         weight = self.flux_cost * self.scale
-        with np.errstate(invalid="ignore", divide="ignore"):  # (a flux not known: no penalty)
+        with np.errstate(invalid="ignore", divide="ignore"):
             # the logs once per track and detection, not per pair; the slack as in the flux check
             mine = weight * np.log(np.where(under | self.flux_dark, np.nan, self.flux) + FLUX_SLACK)
-            theirs = weight * np.log(detections.scores + FLUX_SLACK)
-        if not (np.isfinite(mine).any() and np.isfinite(theirs).any()):  # (``seed``'s NaN scores)
-            return None
-
-        def penalty(tracks: np.ndarray, dets: np.ndarray) -> np.ndarray:
-            return np.nan_to_num(np.abs(mine[tracks] - theirs[dets]), nan=0.0, posinf=0.0)
-
-        return penalty
+            theirs = weight * np.log(scores + FLUX_SLACK)
+        return (mine, theirs) if np.isfinite(mine).any() else None
 
     def _flux_bounds(self, under: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """(low, high) per track: the flux its detection may have this frame (``flux_ratio``);
