@@ -1349,7 +1349,8 @@ def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarr
     """Split components that hold two or more particles (touching or overlapping).
 
     Within each component of 8 pixels or more, the local maxima (3x3) of the
-    excess smoothed by the 3x3 binomial kernel are its candidate peaks.  A peak
+    excess smoothed by the 3x3 binomial kernel are its candidate peaks, and with
+    ``fine`` the compact spots of the unsmoothed excess (:func:`_spots`).  A peak
     other than the component's highest is a separate particle when its nearest
     higher peak is at least 2 px away and the excess on the segment between them
     dips below it by both a quarter of its height and 3 noise units (so a narrow
@@ -1381,6 +1382,11 @@ def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarr
         smooth_img, window, weights, min_d2 = cv2.boxFilter(excess, cv2.CV_16U, (3, 3), normalize=False), _K5, 9.0, 9
     s = smooth_img.ravel().take(pf)
     is_max = s >= cv2.dilate(smooth_img, window).ravel().take(pf)
+    if fine:  # and the spots the smoothing hid beside a brighter neighbour (inside the frame's rim)
+        h, w = excess.shape
+        bump = np.flatnonzero(~is_max & (excess.ravel().take(pf).astype(np.int16) * 16 > s)
+                              & (px > 0) & (px < w - 1) & (py > 0) & (py < h - 1))
+        is_max[bump[_spots(excess, pf[bump])]] = True
     maxima = np.bincount(pl[is_max], minlength=n)
     peaks = np.flatnonzero(is_max & (maxima[pl] >= 2))
     kept_c, kept_y, kept_x = _separate(pl[peaks], py[peaks], px[peaks], s[peaks].astype(np.float64) / weights,
@@ -1433,6 +1439,44 @@ def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarr
     lab = lab.copy()
     lab[pixels] = np.where(nearest == 0, lab[pixels], new_base[r] + nearest - 1)
     return lab, n + int((counts[comps] - 1).sum())
+
+
+def _spots(excess: np.ndarray, flat: np.ndarray) -> np.ndarray:
+    """Which of the pixels at raveled indices ``flat`` of ``excess`` (uint8 (h, w); none on the
+    frame's outermost rows and columns) are compact spots: brighter than all 8 neighbours, and
+    on no ridge -- every line of 3 pixels through the pixel falls below half its height at one
+    end or both.  Indices into ``flat``.
+
+    The peaks of :func:`_split_peaks` are the maxima of the 3x3-smoothed excess, which a
+    faint particle 2-4 working pixels from a bright one is not: the bright one's light, smoothed
+    into the pixels between them, outweighs the faint one's (in the dense cloud, 56 % of the
+    particles missed alone -- in no detection's disc, overlapping no other particle -- were in
+    the mask, most of them such neighbours: SNR 10-20 0.82 of them, above 20 0.93).  Such a
+    particle is a strict maximum of the unsmoothed excess; so is a noise bump on a bubble's
+    rim or any bright edge, but the rim runs on through it (a ridge).  F1 over the catalogue
+    (frames as catalogued) dense 0.899 -> 0.907, sand 0.967 -> 0.970, mixed 0.967 -> 0.969, snow
+    0.974 -> 0.976, bubbles 0.988 -> 0.989, survey 0.956 -> 0.958, textured 0.967 -> 0.968,
+    fullres and the seed tank the same; held-out scene seeds (2) dense 0.909 -> 0.918, mixed
+    0.961 -> 0.963, sand 0.966 -> 0.968; the MSRB photographs the same.  Without the ridge rule
+    fullres lost 0.004 (its bubbles, 1.8 times as many pixels across, split at their rims); a
+    ridge at 0.7 / 0.35 of the height: dense 0.908 / 0.906, fullres 0.965 / 0.966.  Tracking
+    (isolated-particle IDF1): dense 0.903 -> 0.910, snow 0.965 -> 0.971, sand 0.968 -> 0.971,
+    mixed, survey, bubbles, fullres +0.001..+0.002, the seed tank 0.943 -> 0.938 (its
+    hard-edged, noise-free discs, cut by the 2x2 pooling, make strict maxima of their own).
+    Side by side on the same frames (AMD EPYC, one thread), the detector +2-5 % a frame (mixed
+    2096 -> 2190 us median,
+    dense 2777 -> 2897, fullres 3918 -> 4030, seed 4905 -> 4986).
+    """
+    w = excess.shape[1]
+    values = excess.ravel()
+    centre = values.take(flat).astype(np.int16)
+    brightest = np.zeros(len(flat), np.uint8)
+    ridge = np.zeros(len(flat), np.uint8)
+    for step in (1, w - 1, w, w + 1):  # the 4 lines through the pixel
+        before, after = values.take(flat - step), values.take(flat + step)
+        np.maximum(brightest, np.maximum(before, after), out=brightest)
+        np.maximum(ridge, np.minimum(before, after), out=ridge)
+    return np.flatnonzero((centre > brightest) & (2 * ridge.astype(np.int16) < centre))
 
 
 _K5 = np.ones((5, 5), np.uint8)
