@@ -1386,9 +1386,11 @@ def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarr
     top = peak if peak is not None else _group_max(pl, n, pw)[0]
     if fine:  # and the spots the smoothing hid beside a brighter neighbour (inside the frame's rim)
         h, w = excess.shape
-        raw = excess.ravel().take(pf)
-        bump = np.flatnonzero(~is_max & (raw.astype(np.int16) * 16 > s) & (raw < SPOT_SHARE * top[pl])
-                              & (px > 0) & (px < w - 1) & (py > 0) & (py < h - 1))
+        strict = cv2.compare(excess, cv2.dilate(excess, _AROUND), cv2.CMP_GT).ravel().take(pf)
+        bump = np.flatnonzero((strict > 0) & ~is_max)  # strict maxima of the excess not yet peaks
+        bx, by = px[bump], py[bump]
+        bump = bump[(excess.ravel().take(pf[bump]) < SPOT_SHARE * top[pl[bump]])
+                    & (bx > 0) & (bx < w - 1) & (by > 0) & (by < h - 1)]
         is_max[bump[_spots(excess, pf[bump])]] = True
     maxima = np.bincount(pl[is_max], minlength=n)
     peaks = np.flatnonzero(is_max & (maxima[pl] >= 2))
@@ -1489,6 +1491,7 @@ SPOT_SHARE = 0.9
 
 
 _K5 = np.ones((5, 5), np.uint8)
+_AROUND = np.array([[1, 1, 1], [1, 0, 1], [1, 1, 1]], np.uint8)  # the 8 neighbours
 #: smallest core (pixels above half the peak) that can hold two discs with a neck
 _MIN_CORE = 20
 #: a component with this many working pixels at ``_PLATEAU_SHARE`` of its peak or more is flat (a
