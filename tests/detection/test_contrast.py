@@ -1151,3 +1151,16 @@ def test_bubbles_are_not_split_at_the_bumps_of_their_rims():
             split += int((np.hypot(found.centres[:, 0] - x, found.centres[:, 1] - y) < r).sum() >= 2)
     assert bubbles > 300
     assert split <= 0.04 * bubbles, (split, bubbles)
+
+
+def test_a_spot_is_a_strict_maximum_on_no_ridge():
+    from antiscatter.detection.contrast import _spots
+
+    excess = np.zeros((9, 9), np.uint8)
+    excess[2, 2] = 60                      # a lone spot
+    excess[2, 1], excess[3, 2] = 40, 20    # with a shoulder below half its height on one side only
+    excess[6, 1:8] = 50                    # a ridge ...
+    excess[6, 4] = 70                      # ... with a bump on it: both ends of its row stay above half
+    excess[2, 5] = excess[2, 6] = 80       # a tie: no strict maximum
+    flat = np.array([2 * 9 + 2, 6 * 9 + 4, 2 * 9 + 5, 2 * 9 + 6, 3 * 9 + 2])
+    assert _spots(excess, flat).tolist() == [0]
