@@ -1465,10 +1465,10 @@ def _spots(excess: np.ndarray, flat: np.ndarray) -> np.ndarray:
     ridge at 0.7 / 0.35 of the height: dense 0.908 / 0.906, fullres 0.965 / 0.966.  Tracking
     (isolated-particle IDF1): dense 0.903 -> 0.910, snow 0.965 -> 0.971, sand 0.968 -> 0.971,
     mixed, survey, bubbles, fullres +0.001..+0.002, the seed tank 0.943 -> 0.942 (see
-    ``SPOT_SHARE``).
-    Side by side on the same frames (AMD EPYC, one thread), the detector +2-5 % a frame (mixed
-    2096 -> 2190 us median,
-    dense 2777 -> 2897, fullres 3918 -> 4030, seed 4905 -> 4986).
+    ``SPOT_SHARE``).  Side by side on the same frames (AMD EPYC, one thread), the detector +2-5 %
+    a frame (mixed 2096 -> 2190 us median, dense 2777 -> 2897, fullres 3918 -> 4030, seed 4905 ->
+    4986).  The caller takes its candidates from one 8-neighbour dilation of the frame (strict
+    maxima already); the check here is repeated on those few so the function stands alone.
     """
     w = excess.shape[1]
     values = excess.ravel()
