@@ -493,8 +493,13 @@ def test_strategy_flash_skips_frames_exposed_before_the_flash():
     from antiscatter.runtime import run
     from antiscatter.sources.base import Frame, FrameSource
 
+    exposure = 4_000_000
+    refresh = 1_000_000_000 // 120
+
     class StaleCamera(FrameSource):
-        """A free-running camera: every other frame was exposed before it was asked for."""
+        """A free-running camera: every other frame began its exposure just before it was asked
+        for (before the flash could be on screen, a display refresh after it was handed over,
+        though it ends after); the next begins just after that refresh."""
         live, size = True, (160, 120)
 
         def __init__(self):
@@ -504,10 +509,12 @@ def test_strategy_flash_skips_frames_exposed_before_the_flash():
             self.count += 1
             if self.count > 12:
                 return None
-            stamp = 0 if self.count % 2 else FrameSource.now_ns()
-            return Frame(draw_discs(self.size, [(40.0, 40.0, 4.0)]), self.count - 1, stamp)
+            now = FrameSource.now_ns()
+            start = now - 1_000_000 if self.count % 2 else now + refresh + 1_000_000
+            return Frame(draw_discs(self.size, [(40.0, 40.0, 4.0)]), self.count - 1, start + exposure // 2, exposure)
 
-    config = load_config(overrides={"light": {"strategy": "flash"}, "output": {"outputs": ("none",)}})
+    config = load_config(overrides={"light": {"strategy": "flash"}, "output": {"outputs": ("none",)},
+                                    "pattern": {"refresh_hz": 120.0}})
     camera = StaleCamera()
     summary = run(config, source=camera, log=__import__("io").StringIO(), out=__import__("io").StringIO())
     assert summary.frames == 6 and summary.dropped == 6  # each stale frame skipped, the fresh one used
@@ -724,6 +731,9 @@ def test_the_vehicles_default_configuration_runs_on_a_live_source(tmp_path):
     from antiscatter.sources.base import Frame, FrameSource
 
     class LiveCamera(FrameSource):
+        """A camera exposing on request (as one triggered would): each frame's 1 ms exposure
+        begins 1 ms more than a projector refresh (120 Hz) after it is asked for, so a pulse is on
+        through it."""
         live, size = True, (160, 120)
 
         def __init__(self):
@@ -733,8 +743,9 @@ def test_the_vehicles_default_configuration_runs_on_a_live_source(tmp_path):
             self.count += 1
             if self.count > 20:
                 return None
+            time.sleep(1 / 120 + 0.002)
             image = draw_discs(self.size, [(60.0 + 2 * self.count, 50.0, 4.0), (110.0, 80.0 - self.count, 3.0)])
-            return Frame(image, self.count - 1, FrameSource.now_ns())
+            return Frame(image, self.count - 1, FrameSource.now_ns() - 500_000, 1_000_000)
 
     calibration = tmp_path / "cal.json"
     assert antiscatter("calibrate", str(calibration), "--twin", "--size", "160x120").returncode == 0

@@ -813,22 +813,25 @@ def _run_single(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: 
 
     With the ``flash`` and ``pulse`` strategies each turn starts with the exposure's
     light (the detection flash, or the last pattern with its holes lifted); a live
-    source's frames exposed before it went on (the camera free-runs) are skipped and
-    counted as dropped, so the detector sees particles under that light; once the
-    frame is in, the last pattern goes back on while it is processed.
+    source's frames whose exposure began before that light can have been on (the camera
+    free-runs; the display takes it at its next refresh, up to one refresh period after
+    it was handed over) are skipped and counted as dropped, so the detector sees
+    particles under that light; once the frame is in, the last pattern goes back on
+    while it is processed.
     """
     summary = pipeline.summary
     pacer = Pacer(rc.fps)
     flashing = pipeline.exposing
     live = getattr(source, "live", False)
+    refresh_ns = int(round(pipeline.refresh_s * 1e9))
     while True:
         if _finished(summary, stop, rc):
             return
         pacer.wait()
-        flash_on = pipeline.flash() if flashing else 0
+        flash_on = pipeline.flash() + refresh_ns if flashing else 0  # on screen by then at the latest
         frame, t0, t1 = _timed_read(source)
         stale = 0
-        while flashing and live and frame is not None and frame.timestamp_ns < flash_on \
+        while flashing and live and frame is not None and frame.exposure_start_ns < flash_on \
                 and stale < MAX_STALE_FRAMES:
             stale += 1
             frame, t0, t1 = _timed_read(source)

@@ -87,7 +87,9 @@ def test_yuv_y_plane_without_conversion_through_mapped_array():
     assert frame.image.shape == (40, 60) and frame.image.dtype == np.uint8
     np.testing.assert_array_equal(frame.image[0], np.arange(60) % 256)  # Y only, padding and UV cut off
     assert FakeMappedArray.entered >= 1 and cam.requests[-1].released
-    assert frame.timestamp_ns == 1_000_000_000
+    # SensorTimestamp is the end of the 1 ms exposure: the frame's time is its middle
+    assert frame.timestamp_ns == 1_000_000_000 - 500_000 and frame.exposure_ns == 1_000_000
+    assert frame.exposure_start_ns == 1_000_000_000 - 1_000_000
     frame.image[0, 0] = 99  # our own copy: the camera buffer went back untouched
     assert cam.requests[0].image[0, 0] == 0
     source.close()
@@ -103,6 +105,7 @@ def test_camera_source_configures_and_reads_with_sensor_timestamps():
     assert first.image.shape == (48, 64, 3)
     assert second.image[0, 0, 0] == 1
     assert second.timestamp_ns - first.timestamp_ns == 16_666_667
+    assert first.exposure_ns == 1_000_000
     assert all(r.released for r in cam.requests)
     source.close()
     assert cam.closed

@@ -32,13 +32,21 @@ class Frame:
 
     image: (H, W, 3) BGR or (H, W) grey, uint8 (may be a view into a larger buffer).
     index: frame number from 0 in the order the source delivered them.
-    timestamp_ns: capture time on the ``time.monotonic_ns()`` clock (the sensor
-        timestamp where the camera gives one).
+    timestamp_ns: capture time on the ``time.monotonic_ns()`` clock: the middle of the
+        exposure where the camera says when it exposed (the particles are seen where they were
+        then), the time the frame was read otherwise.
+    exposure_ns: how long the frame was exposed, 0 when unknown (a file, the simulator).
     """
 
     image: np.ndarray
     index: int
     timestamp_ns: int
+    exposure_ns: int = 0
+
+    @property
+    def exposure_start_ns(self) -> int:
+        """When the exposure began (``timestamp_ns`` when its length is unknown)."""
+        return self.timestamp_ns - self.exposure_ns // 2
 
 
 class FrameSource:

@@ -89,9 +89,10 @@ class CameraSource(FrameSource):
         fakes); loaded lazily when None.
 
     Three buffers and ``queue=False``: a frame handed out is never a stale
-    queued one.  Frames carry the sensor timestamp (``SensorTimestamp``
-    metadata, ns, the ``CLOCK_MONOTONIC`` clock of ``time.monotonic_ns()``)
-    when the camera reports one.
+    queued one.  Frames carry the middle of their exposure, from the sensor
+    timestamp (``SensorTimestamp`` metadata, ns, the ``CLOCK_MONOTONIC`` clock of
+    ``time.monotonic_ns()``: the end of the exposure) less half the ``ExposureTime``,
+    and the exposure's length, when the camera reports them.
     """
 
     name = "camera"
@@ -135,7 +136,12 @@ class CameraSource(FrameSource):
         finally:
             request.release()
         stamp = metadata.get("SensorTimestamp")
-        frame = Frame(image, self._count, int(stamp) if stamp else self.now_ns())
+        # SensorTimestamp marks the start of the readout, i.e. the end of the exposure, on the
+        # global-shutter IMX296 (the ISP's start-of-frame interrupt; picamera2 issue 821):
+        # the frame's time is the exposure's middle, ExposureTime (us) before that by half
+        exposure_ns = int(round(float(metadata.get("ExposureTime") or 0) * 1e3)) if stamp else 0
+        frame = (Frame(image, self._count, int(stamp) - exposure_ns // 2, exposure_ns) if stamp
+                 else Frame(image, self._count, self.now_ns()))
         self._count += 1
         return frame
 
