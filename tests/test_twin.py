@@ -569,3 +569,68 @@ def test_dim_holes_rest_two_frames_after_each_look_by_default():
     assert len(looks) == 4 and np.diff(looks).tolist() == [3, 3, 3]  # a frame at its level in every three
     assert all(series[k] == pytest.approx(1 - floor, abs=1e-6) for k in looks)
     assert all(r == pytest.approx(1.0, abs=1e-6) for k, r in enumerate(series) if k not in looks)  # the rest dark
+
+
+def test_a_free_running_camera_takes_the_first_frame_exposed_once_the_light_is_on_screen():
+    from antiscatter.twin import _FreeRunning
+
+    # 120 Hz display, 60 Hz camera, 4 ms exposures starting half a refresh into the frame, 5 ms latency
+    refresh, frame = 1 / 120, 1 / 60
+    free = _FreeRunning(refresh, 0.005)
+    start = [k * frame + refresh / 2 for k in range(6)]
+    # the light handed over at 0 is on screen from the first flip, 8.3 ms: frame 0 (4.2..8.2 ms) is skipped
+    assert not free.take(start[0], start[0] + 0.004) and free.take(start[1], start[1] + 0.004)
+    lands = free.processed(start[1] + 0.004)  # read at 24.8 ms: the last pattern back at 25 ms
+    assert lands == pytest.approx(4 * refresh)  # ready at 29.8 ms, shown at the flip at 33.3 ms
+    assert free.light_at(3 * refresh, True) is False and free.light_at(4 * refresh, False) is False
+    assert free.light_at(5 * refresh, False) is True  # the next light handed over then: on a refresh later
+    # frame 2 (37.5..41.5 ms) ends after the light was handed over but began before it was on screen
+    assert not free.take(start[2], start[2] + 0.004) and free.take(start[3], start[3] + 0.004)
+    # a camera that keeps skipping is read all the same after MAX_STALE_FRAMES
+    stuck = _FreeRunning(refresh, 0.005)
+    assert [stuck.take(0.0, 0.004) for _ in range(4)] == [False, False, False, True]
+    # the rule run had while the camera's stamp (the exposure's end) was taken for the capture time
+    old = _FreeRunning(refresh, 0.005, skip_before="handed over")
+    old.processed(start[1] + 0.004)
+    assert old.take(start[2], start[2] + 0.004)
+
+
+def test_pulsed_holes_on_a_free_running_camera():
+    # the light goes on at a flip, not with the exposure: each exposure used is the first that began
+    # once it was on, so every other frame is read; the lifted light stays on from its flip until
+    # that frame is read -- here two refreshes in four, so the particle still gets 0.2 / 2
+    def run(**kw):
+        return simulate_loop(TwinRun("contrast", "calibrated", "pulse", dim_level=0.2, margin_px=12.0),
+                             geometry=TwinGeometry(camera_size=SIZE, baseline_m=0.0, camera_phase=0.5), frames=24,
+                             latency_ms=5, scene=one_static_particle(), **kw)
+
+    out = run()
+    assert out["camera"] == "free" and out["camera_phase"] == 0.5 and out["frames_processed"] == 12
+    assert [f["removed"] for f in out["series"][4:]] == pytest.approx([0.9] * 20, abs=1e-6)
+    # taking the frame stamped after the light was handed over instead (run's rule before): every
+    # other one was exposed under the dark holes, lost the particle, and the loop flickers
+    import antiscatter.twin as twin
+
+    real = twin._FreeRunning.__init__
+    try:
+        twin._FreeRunning.__init__ = lambda self, refresh, latency: real(self, refresh, latency, "handed over")
+        flicker = run()
+    finally:
+        twin._FreeRunning.__init__ = real
+    removed = [f["removed"] for f in flicker["series"][4:]]
+    assert flicker["frames_processed"] == 24 and removed == pytest.approx([0.0, 0.9] * 10, abs=1e-6)
+
+
+def test_twin_command_free_running_camera(cli):
+    result = cli("twin", "--frames", "8", "--size", "200x150", "--preset", "bubbles", "--baseline-m", "0",
+                 "--camera-phase", "0.25", "--json")
+    assert result.code == 0, result.err
+    out = json.loads(result.out)
+    assert out["camera_phase"] == 0.25
+    runs = [r for r in out["runs"] if r["detector"]]
+    assert all(r["camera"] == "free" for r in runs)
+    # pulse and flash read every other frame; the others every frame
+    assert {r["frames_processed"] for r in runs if r["strategy"] in ("pulse", "flash")} == {4}
+    assert {r["frames_processed"] for r in runs if r["strategy"] not in ("pulse", "flash")} == {8}
+    bad = cli("twin", "--camera-phase", "1.5", "--frames", "2")
+    assert bad.code == 2 and "camera_phase: got 1.5, allowed 0 <= phase < 1" in bad.err and "Traceback" not in bad.err

@@ -288,6 +288,10 @@ def build_parser() -> argparse.ArgumentParser:
     tw.add_argument("--projector-hz", type=float, default=120.0, help="projector refresh (default 120)")
     tw.add_argument("--exposure-ms", type=float, help="camera exposure (default 4, or one projector refresh if "
                     "shorter); the light a frame gathers scales with it")
+    tw.add_argument("--camera-phase", type=float, metavar="F", help="a free-running camera, each exposure starting "
+                    "F (0..1) of a projector refresh after one begins; pulse and flash then run as run does on "
+                    "it (the frames exposed before the light is on screen skipped, the light on until the frame "
+                    "is read); default: the camera locked to the projector, each exposure at a refresh's start")
     tw.add_argument("--flash-level", type=float, default=0.25, help="brightness of the detection flash in the "
                     "flash runs, 0..1 (default 0.25; with a fast projector a full 1.0 flash is short)")
     tw.add_argument("--dim-level", type=float, default=0.1, help="light left in dim and pulsed holes, 0..1 "
@@ -728,7 +732,7 @@ def _twin(args: argparse.Namespace) -> int:
         geometry = TwinGeometry(camera_size=size, projector_size=projector, baseline_m=args.baseline_m,
                                 projector_hz=args.projector_hz, exposure_s=exposure,
                                 projector_aperture_m=args.projector_aperture_mm / 1e3,
-                                projector_focus_m=args.projector_focus_m)
+                                projector_focus_m=args.projector_focus_m, camera_phase=args.camera_phase)
     except ValueError as exc:
         raise UsageError(f"twin: {exc}") from None
     calibration = None
@@ -758,8 +762,10 @@ def _twin(args: argparse.Namespace) -> int:
             levels = f"{result['levels']} levels" if result["levels"] else ""  # dim and pulse only
             if result["min_worth"] == 0:
                 levels += ", every hole"  # probing without the holes' worth rule
+            if result["frames_processed"] < args.frames and result["detector"]:  # a free-running camera's skips
+                levels = ", ".join(filter(None, (levels, f"{result['frames_processed']} frames read")))
             print(f"{result['detector'] or 'full light':<10} {result['mapping']:<11} {result['strategy']:<6} "
-                  f"predict {str(result['predict']).lower():<5} {levels:<27} "
+                  f"predict {str(result['predict']).lower():<5} {levels:<34} "
                   f"removed {result['backscatter_removed']:.3f}  "
                   f"kept {result['scene_light_kept']:.3f}  (from frame {result['steady_from_frame']}: "
                   f"{result['backscatter_removed_steady']:.3f} / {result['scene_light_kept_steady']:.3f})")
@@ -772,7 +778,8 @@ def _twin(args: argparse.Namespace) -> int:
             print(f"wrote {args.plot}")
     if args.json:
         print(json.dumps({"preset": args.preset, "frames": args.frames, "baseline_m": args.baseline_m,
-                          "latency_ms": args.latency_ms, "projector_aperture_mm": args.projector_aperture_mm,
+                          "latency_ms": args.latency_ms, "camera_phase": args.camera_phase,
+                          "projector_aperture_mm": args.projector_aperture_mm,
                           "projector_focus_m": args.projector_focus_m or geometry.background_m,
                           **extra, "runs": runs}, indent=2))
     return 0

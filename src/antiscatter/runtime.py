@@ -449,8 +449,9 @@ class _Pipeline:
                 # lifted pattern, on for a projector refresh from then, for the middle of that (twin,
                 # co-located, 12 scenes: 0.925 -> 0.928 removed)
                 period = self.frame_period or 0.0
-                next_exposure = captured + (period * max(1, math.ceil(latency / period - 1e-9)) if period
-                                            else latency)
+                started = captured - frame.exposure_ns / 2e9  # the camera's frames: stamped mid-exposure
+                next_exposure = started + (period * max(1, math.ceil(latency / period - 1e-9)) if period
+                                           else latency)
                 exposure_holes = prediction.holes(next_exposure if self.probe is not None
                                                   else next_exposure + self.refresh_s / 2)
             if self.levels is not None:  # how bright each came back under its own hole (or probe: its verdict)

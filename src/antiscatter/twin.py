@@ -83,6 +83,68 @@ class _Probing:
     exposure_at: float  # ... and those the next exposure is taken under (pulse: the probes' halves)
     levels: HoleLevels | None  # each hole's light as it was when the pattern was made
 
+def _flip_lands(t: float, refresh: float) -> float:
+    """When a flip asked for at ``t`` lands: the first refresh boundary after it (a display flips
+    on vertical blank)."""
+    return (math.floor(t / refresh + 1e-9) + 1) * refresh
+
+
+class _FreeRunning:
+    """``run``'s turn in mode single with ``pulse`` or ``flash`` on a free-running camera and a
+    display that flips on vertical blank (output ``kms``), in twin time (seconds):
+
+    the exposure's light is handed over once the last pattern's flip has landed (``show`` waits
+    for a pending flip), and lands a refresh later; frames that ended before it was handed over
+    are gone (the camera keeps no queue); of the rest, those whose exposure began before the light
+    can have been on screen are skipped (at most ``MAX_STALE_FRAMES``); once a frame is read (at
+    its exposure's end) the pattern goes back if the light's flip has landed; the frame's pattern
+    is ready ``latency`` later and is shown at the next flip, after any pending one.
+    """
+
+    def __init__(self, refresh: float, latency: float, skip_before: str = "on screen") -> None:
+        from .runtime import MAX_STALE_FRAMES
+
+        self.refresh, self.latency, self.most_stale = refresh, latency, MAX_STALE_FRAMES
+        self.skip_before = skip_before
+        self.handed = 0.0  # when the exposure's light was handed over (run's flash_on)
+        self.stale = 0
+        self.events = [(_flip_lands(0.0, refresh), True)]  # (when, the exposure's light on)
+        self.on = False
+
+    def light_at(self, t: float, on: bool) -> bool:
+        """Whether the exposure's light is on in the refresh starting at ``t`` (``on``: it was until
+        now, False when a new pattern has just landed)."""
+        while self.events and self.events[0][0] <= t + 1e-12:
+            on = self.events.pop(0)[1]
+        return on
+
+    def take(self, start: float, end: float) -> bool:
+        """Whether the frame exposed ``start``..``end`` is one ``run`` processes."""
+        if end <= self.handed + 1e-12:
+            return False  # ended before it was asked for
+        # run's rule: began once the light is on screen; "handed over": the frame stamped after it
+        # was handed over (what run did while the camera's stamp was taken for the capture time)
+        fresh = (start >= self.handed + self.refresh - 1e-9 if self.skip_before == "on screen"
+                 else end >= self.handed)
+        if not fresh and self.stale < self.most_stale:
+            self.stale += 1
+            return False
+        return True
+
+    def processed(self, end: float) -> float:
+        """The frame read at ``end`` (its exposure's end): when its pattern lands.  Schedules the
+        pattern put back after it and the next exposure's light."""
+        lit = _flip_lands(self.handed, self.refresh)
+        pending = lit
+        if end >= lit - 1e-12:  # the light's flip has landed: the last pattern back at the next one
+            pending = _flip_lands(end, self.refresh)
+            self.events.append((pending, False))
+        lands = _flip_lands(max(end + self.latency, pending), self.refresh)
+        self.handed, self.stale = lands, 0  # the next light waits for that flip
+        self.events.append((_flip_lands(lands, self.refresh), True))
+        return lands
+
+
 __all__ = ["TwinGeometry", "TwinRun", "simulate_loop", "default_runs", "backscatter_weight", "STRATEGIES", "MAPPINGS"]
 
 STRATEGIES = ("none", "dim", "pulse", "flash", "coast")
@@ -109,6 +171,12 @@ class TwinGeometry:
     an Optoma ML550-class projector, 1280x800, throw ratio 1.2, refreshing at
     120 Hz; the camera at 60 Hz with a 4 ms exposure; the background plane at 3 m.
 
+    camera_phase: None (default) is the camera locked to the projector (its external trigger on
+    the projector's vsync): each exposure starts with a refresh.  A number 0..1 is a free-running
+    camera, each exposure starting that share of a refresh after one begins (its clock drifts
+    against the projector's by parts per million: the phase holds over a run).  With ``pulse``
+    and ``flash`` the loop is then ``run``'s on such a camera (:class:`_FreeRunning`).
+
     projector_aperture_m: the projector lens's aperture diameter; 0 (default) is the pinhole
     projector, sharp at every depth.  Above 0 the pattern is sharp only at ``projector_focus_m``
     (0 = the background's distance): a particle at depth Z gets the pattern blurred by a disc of
@@ -129,6 +197,7 @@ class TwinGeometry:
     far_m: float = 3.0
     projector_aperture_m: float = 0.0
     projector_focus_m: float = 0.0
+    camera_phase: float | None = None
 
     def __post_init__(self) -> None:
         for key in ("projector_aperture_m", "projector_focus_m"):
@@ -144,6 +213,11 @@ class TwinGeometry:
         if not 0 < self.exposure_s <= 1 / self.projector_hz + 1e-12:
             raise ValueError(f"exposure_s: got {self.exposure_s}, allowed 0 < exposure <= one projector refresh "
                              f"({1 / self.projector_hz:.4f} s)")
+        if self.camera_phase is not None and not (
+                math.isfinite(self.camera_phase) and 0 <= self.camera_phase < 1
+                and self.camera_phase / self.projector_hz + self.exposure_s <= 1 / self.camera_hz + 1e-12):
+            raise ValueError(f"camera_phase: got {self.camera_phase}, allowed 0 <= phase < 1 (of a projector refresh) "
+                             "with the exposure ending inside its camera frame")
 
     @property
     def camera_focal(self) -> float:
@@ -388,11 +462,10 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
     series = []
     exposure_pattern = None  # the pattern on during the last exposure (projector pixels, 1 = full)
 
-    def _process(image: np.ndarray, t0: float) -> tuple[float, Any]:
-        """The system under test on one exposure: (time its pattern goes on, pattern or prediction)."""
+    def _process(image: np.ndarray, t0: float, on_at: float) -> tuple[float, Any]:
+        """The system under test on the exposure that began at ``t0``, its pattern going on at
+        ``on_at``: (on_at, pattern or prediction)."""
         found = detector.detect(image)
-        ready = t0 + geometry.exposure_s + latency
-        on_at = math.ceil(ready / sub_s - 1e-9) * sub_s
         if tracker is not None:
             tracks = tracker.update(found, t0 + geometry.exposure_s / 2, unlit=shown_ids)
             if probe is not None:
@@ -412,7 +485,8 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
             # refresh (a pattern ready after the next exposure began waits for the one after)
             exposure_at = at
             if run.predict and run.strategy == "pulse":
-                exposure_at = math.ceil(on_at / frame_s - 1e-9) * frame_s + (0.0 if probe is not None else sub_s / 2)
+                exposure_at = (math.ceil((on_at - offset) / frame_s - 1e-9) * frame_s + offset
+                               + (0.0 if probe is not None else sub_s / 2))
             if probe is not None:
                 snapshot = tracker.snapshot()
                 probes, covers = probe.plan(snapshot.holes(at))
@@ -423,10 +497,37 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
                                  holes if exposure_at == at else tracker.holes(exposure_at))
         return on_at, _holes_pattern(found, run, **drawn)
 
+    def _shown(displayed: Any, lifted: bool) -> np.ndarray:
+        """The light of a refresh: the pattern ``displayed``, or (``lifted``) the exposure's light
+        -- the flash, or the pattern with its holes lifted (pulse)."""
+        if detector is None:
+            return full
+        if run.strategy == "flash" and lifted:
+            return flash  # the detection flash, timed to the exposure
+        pulsed = lifted and run.strategy == "pulse"
+        if isinstance(displayed, _Probing):
+            # pulse: only the exposure's refresh needs the probe's half; the others keep the
+            # whole interval that may hold the particle dark
+            return _holes_pattern(displayed.prediction.holes(displayed.exposure_at if pulsed else displayed.at),
+                                  run, lifted=pulsed, probes=displayed.probes if lifted else displayed.between,
+                                  grow=not lifted and displayed.between is not displayed.probes,
+                                  **{**drawn, "levels": displayed.levels})
+        if isinstance(displayed, _Fixed):
+            return _holes_pattern(displayed.holes, run, lifted=True, **drawn) if pulsed else displayed.light
+        return np.maximum(displayed, run.dim_level) if pulsed else displayed  # holes dimmed while the camera exposes
+
+    # the exposure's light: in the first refresh of each frame (camera locked to the projector),
+    # or as run gives it on a free-running camera
+    exposing = run.strategy in ("pulse", "flash") and detector is not None
+    offset = (geometry.camera_phase or 0.0) * sub_s  # the exposure's start after its frame's first refresh
+    free = _FreeRunning(sub_s, latency) if exposing and geometry.camera_phase is not None else None
+    lifted = False
+    processed = 0
     for k in range(frames):
         if k:
             scene.step()
         t0 = k / geometry.camera_hz
+        te = t0 + offset
         p = scene.particles()
         u, v = geometry.to_projector(p["X"], p["Y"], p["Z"])
         rp = geometry.projector_focal * p["R"] / p["Z"]
@@ -438,39 +539,17 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
         frame_on = np.zeros(len(u))
         frame_full = np.zeros(len(u))
         frame_scene = 0.0
+        exposure_on, exposure_bg = np.zeros(len(u)), 0.0  # the light the exposure gathers
         for j in range(sub_per_frame):
             ts = t0 + j * sub_s
             while queue and queue[0][0] <= ts + 1e-12:
                 displayed = queue.pop(0)[1]
-            if j == 0:
-                shown_probes = displayed.probes if isinstance(displayed, _Probing) else {}
-                # the tracks whose holes this exposure is taken under (none under a flash)
-                shown_ids = (None if run.strategy == "flash" else
-                             Intervals.of(displayed.probes).ids if isinstance(displayed, _Probing) else
-                             displayed.ids if isinstance(displayed, _Fixed) else None)
-                shown_rested = levels.rested(shown_ids) if levels is not None and shown_ids is not None else None
-            pulsed = run.strategy == "pulse" and j == 0 and detector is not None  # the exposure's refresh
-            if detector is None:
-                shown = full
-            elif run.strategy == "flash" and j == 0:
-                shown = flash  # the detection flash, timed to the exposure
-            elif isinstance(displayed, _Probing):
-                # pulse: only the exposure's refresh needs the probe's half; the others keep the
-                # whole interval that may hold the particle dark
-                shown = _holes_pattern(displayed.prediction.holes(displayed.exposure_at if pulsed else displayed.at),
-                                       run, lifted=pulsed,
-                                       probes=displayed.between if j else displayed.probes,
-                                       grow=bool(j) and displayed.between is not displayed.probes,
-                                       **{**drawn, "levels": displayed.levels})
-            elif isinstance(displayed, _Fixed):
-                shown = _holes_pattern(displayed.holes, run, lifted=True, **drawn) if pulsed else displayed.light
-            else:
-                shown = displayed
-            if pulsed and not isinstance(displayed, (_Fixed, _Probing)):  # (those drawn lifted above)
-                shown = np.maximum(shown, run.dim_level)  # holes dimmed only while the camera exposes
+                lifted = False  # a new pattern replaces the exposure's light
+            lifted = free.light_at(ts, lifted) if free is not None else exposing and j == 0
+            shown = _shown(displayed, lifted)
             # the scene's state is the frame's mid-exposure; particles keep moving through the
             # frame period, so each refresh lights them where they are in its middle
-            q = scene.particles(ahead_s=j * sub_s + sub_s / 2 - geometry.exposure_s / 2)
+            q = scene.particles(ahead_s=j * sub_s + sub_s / 2 - offset - geometry.exposure_s / 2)
             su, sv = geometry.to_projector(q["X"], q["Y"], q["Z"])
             blur = geometry.defocus_px(q["Z"]) if geometry.projector_aperture_m else None
             particle_light = _mean_over_discs(shown, su, sv, np.maximum(rp, 0.5), blur)
@@ -482,24 +561,44 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
             if background_blur is not None:  # the projector focused nearer or farther than the background
                 bg = cv2.filter2D(bg, -1, background_blur, borderType=cv2.BORDER_CONSTANT)
             frame_scene += float(bg[lit_area].sum()) / lit_reference
-            if j == 0 and detector is not None:
-                exposure_pattern = shown  # what the probe's verdicts are judged against
-                # the exposure sits at the start of the frame, inside the first refresh; its pattern
-                # may go on at a later refresh of this same frame
-                # the simulator's brightness is that of a 4 ms exposure: a shorter one gathers less
-                gather = geometry.exposure_s / REFERENCE_EXPOSURE_S
-                exposure_light = (gather * _mean_over_discs(shown, u, v, np.maximum(rp, 0.5),
-                                                            geometry.defocus_px(p["Z"]) if blur is not None else None),
-                                  gather * bg)
-                # the system knows the light it put on the scene during this exposure: its
-                # pattern, taken back to camera pixels on a plane at the far working distance
-                if run.mapping != "identity":  # as run: no compensation without a calibration
-                    detector.set_light(camera_light(shown, camera_from_far, geometry.camera_size))
-                if tracker is not None and run.strategy != "flash" and run.mapping != "identity":
-                    # as run (with compensation): where tracked particles should be now
-                    detector.expect(tracker.snapshot().holes(t0 + geometry.exposure_s / 2))
-                queue.append(_process(scene.render(light=exposure_light), t0))
-                queue.sort(key=lambda item: item[0])
+            if detector is None:
+                continue
+            end = te + geometry.exposure_s
+            # the share of the exposure in this refresh
+            share = (1.0 if ts <= te and end <= ts + sub_s + 1e-12 else
+                     (min(end, ts + sub_s) - max(te, ts)) / geometry.exposure_s)
+            if share > 0:
+                exposure_on = exposure_on + share * _mean_over_discs(
+                    shown, u, v, np.maximum(rp, 0.5), geometry.defocus_px(p["Z"]) if blur is not None else None)
+                exposure_bg = exposure_bg + share * bg
+            if not ts < end <= ts + sub_s + 1e-12 or (free is not None and not free.take(te, end)):
+                continue  # the exposure goes on, or run does not read this frame
+            # the exposure's pattern goes on at a later refresh of this frame or the next
+            processed += 1
+            # what the system believes the exposure was taken under (free-running, with the
+            # exposure's light: that light, whether or not it was on all through)
+            believed = shown if lifted or not exposing else _shown(displayed, True)
+            exposure_pattern = believed  # what the probe's verdicts are judged against
+            shown_probes = displayed.probes if isinstance(displayed, _Probing) else {}
+            # the tracks whose holes this exposure is taken under (none under a flash)
+            shown_ids = (None if run.strategy == "flash" else
+                         Intervals.of(displayed.probes).ids if isinstance(displayed, _Probing) else
+                         displayed.ids if isinstance(displayed, _Fixed) else None)
+            shown_rested = levels.rested(shown_ids) if levels is not None and shown_ids is not None else None
+            # the simulator's brightness is that of a 4 ms exposure: a shorter one gathers less
+            gather = geometry.exposure_s / REFERENCE_EXPOSURE_S
+            exposure_light = (gather * exposure_on, gather * exposure_bg)
+            # the system knows the light it put on the scene during this exposure: its
+            # pattern, taken back to camera pixels on a plane at the far working distance
+            if run.mapping != "identity":  # as run: no compensation without a calibration
+                detector.set_light(camera_light(believed, camera_from_far, geometry.camera_size))
+            if tracker is not None and run.strategy != "flash" and run.mapping != "identity":
+                # as run (with compensation): where tracked particles should be now
+                detector.expect(tracker.snapshot().holes(te + geometry.exposure_s / 2))
+            on_at = (free.processed(end) if free is not None else
+                     math.ceil((end + latency) / sub_s - 1e-9) * sub_s)
+            queue.append(_process(scene.render(light=exposure_light), te, on_at))
+            queue.sort(key=lambda item: item[0])
         frame_on /= sub_per_frame
         frame_scene /= sub_per_frame
         frame_full /= sub_per_frame
@@ -526,7 +625,8 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
             "grow": run.grow if run.detector else None,
             "grow_from": run.grow_from if run.detector and run.grow else None,
             "min_worth": run.min_worth if probe is not None else None,
-            "latency_ms": latency_ms,
+            "latency_ms": latency_ms, "camera": "locked" if geometry.camera_phase is None else "free",
+            "camera_phase": geometry.camera_phase, "frames_processed": processed if run.detector else 0,
             "baseline_m": geometry.baseline_m, "backscatter_removed": removed,
             "scene_light_kept": on_scene / scene_samples if scene_samples else 1.0, "frames": frames,
             "steady_from_frame": settle, "backscatter_removed_steady": removed_steady,
