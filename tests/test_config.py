@@ -112,3 +112,29 @@ def test_rest_defaults_to_the_strategys_own():
     assert load_config(overrides={"light": {"strategy": "dim"}}).light.rest == 2
     assert load_config(overrides={"light": {"strategy": "pulse"}}).light.rest == 1
     assert load_config(overrides={"light": {"strategy": "dim", "rest": 1}}).light.rest == 1
+
+
+def test_the_camera_lock_and_what_it_needs():
+    locked = {"spec": "camera", "camera_lock": True, "camera_exposure_ms": 4.0}
+    kms = {"outputs": ("kms",)}
+    config = load_config(overrides={"source": locked, "output": kms})
+    assert config.source.camera_lock and config.light.strategy == "pulse"  # auto: pulsed holes when locked
+    assert load_config(overrides={"source": {"spec": "camera"}}).light.strategy == "dim"  # free-running: dim
+    flash = load_config(overrides={"source": locked, "output": kms, "light": {"strategy": "flash"}})
+    assert flash.light.strategy == "flash"
+    cases = [
+        ({"source": {**locked, "spec": "sim"}, "output": kms}, r"locks the camera \(source camera\), got source 'sim'"),
+        ({"source": locked, "output": {"outputs": ("framebuffer",)}}, "needs output kms"),
+        ({"source": locked, "output": kms, "light": {"strategy": "dim"}}, "times the pulse or the flash to the exposure: needs light.strategy pulse or flash, got dim"),
+        ({"source": {**locked, "camera_exposure_ms": 0.0}, "output": kms},
+         "needs a fixed camera_exposure_ms inside one projector refresh .* got automatic"),
+        ({"source": {**locked, "camera_exposure_ms": 10.0}, "output": kms},
+         r"needs a fixed camera_exposure_ms inside one projector refresh \(0 < exposure <= 8.33 ms at 120 Hz\), "
+         "got 10"),
+        ({"source": {**locked, "camera_fps": 50.0}, "output": kms},
+         "needs the camera's frame period a whole number of projector refreshes, got camera_fps 50 with "
+         "pattern.refresh_hz 120"),
+    ]
+    for overrides, message in cases:
+        with pytest.raises(UsageError, match="source.camera_lock: " + message):
+            load_config(overrides=overrides)

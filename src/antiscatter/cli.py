@@ -70,6 +70,10 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--camera-exposure-ms", type=float, help="fixed camera exposure, ms, automatic exposure and "
                    "gain off (default: automatic); pulse and flash need it inside one projector refresh")
     g.add_argument("--camera-gain", type=float, help="analogue gain with a fixed exposure, 1-64 (default 1)")
+    g.add_argument("--camera-lock", action="store_true", default=None, help="lock the camera's exposures to the "
+                   "projector's refresh in software (frame durations nudged), so pulse or flash lights every "
+                   "exposure; needs a fixed --camera-exposure-ms, --output kms and --mode single; --strategy "
+                   "auto then pulses")
     g.add_argument("--camera-colour", action="store_true", default=None, help="BGR frames from the camera "
                    "instead of the Y plane of its YUV420 stream (the default: grey without conversion)")
     g = run.add_argument_group("detector")
@@ -861,7 +865,7 @@ def _run_config(args: argparse.Namespace):
         "source": {"spec": args.source, "crop": args.crop, "loop": args.loop, "preset": args.preset,
                    "seed": args.seed, "size": args.size, "camera_fps": args.camera_fps,
                    "camera_colour": args.camera_colour, "camera_exposure_ms": args.camera_exposure_ms,
-                   "camera_gain": args.camera_gain},
+                   "camera_gain": args.camera_gain, "camera_lock": args.camera_lock},
         "detector": {"name": args.detector},
         "pattern": {"margin": args.margin, "grow": args.grow, "grow_from": args.grow_from},
         "track": {"enabled": args.track, "predict": args.predict, "latency_ms": args.latency_ms},

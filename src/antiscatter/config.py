@@ -56,6 +56,12 @@ class SourceConfig:
     camera_exposure_ms: a fixed camera exposure, milliseconds, automatic exposure and gain off
         (0, the default: automatic); ``pulse`` and ``flash`` need it inside one projector refresh.
     camera_gain: the analogue gain with a fixed exposure (0, the default: 1.0).
+    camera_lock: lock the camera's exposures to the projector's refresh in software
+        (:class:`~antiscatter.lock.PhaseLock`: each frame's duration nudged until its exposure
+        sits in the middle of a refresh) so that pulsed holes or the flash light every exposure,
+        as with the sensor's trigger on the projector's vsync.  Needs the camera with a fixed
+        exposure inside one refresh, a frame period of whole refreshes, output ``kms`` (its flips
+        say when the refreshes are) and mode ``single``; ``auto`` then picks ``pulse``.
     """
 
     spec: str = "sim"
@@ -68,6 +74,7 @@ class SourceConfig:
     camera_colour: bool = False
     camera_exposure_ms: float = 0.0
     camera_gain: float = 0.0
+    camera_lock: bool = False
 
     def __post_init__(self) -> None:
         if self.size:
@@ -242,17 +249,19 @@ class TrackConfig:
 STRATEGIES = ("none", "dim", "pulse", "flash", "coast")
 #: what ``auto`` picks on the vehicle (the camera as source), with tracking and prediction on:
 #: dim holes keep darkened particles visible, so tracks and (with a baseline) depth probing go
-#: on, whatever the camera's timing.  In the twin (120 Hz projector, 60 Hz camera, 5 ms; mixed
-#: scene, the scoreboard's three scenes): co-located, dim removes 0.88 keeping 0.96 of the scene
-#: light (coasting 0.72 / 0.94); at 12 cm with depth probing 0.74 / 0.94.  ``pulse`` does better
-#: there -- 0.91 / 0.96 co-located, 0.82 / 0.93 probing at 12 cm, and 0.93 / 0.97 with a 480 Hz
-#: projector (a full flash 0.85 / 0.94) -- but the twin exposes the camera inside one projector refresh, which
-#: needs the camera locked to the projector (the IMX296's external trigger on the projector's
-#: vsync).  A free-running camera gives each pulse or flash the next exposure that starts after
-#: it went on: the earlier one is skipped, which about halves the frame rate, and the pulse
-#: stays on until that frame is read.  So ``auto`` keeps ``dim``; choose ``pulse`` with a
-#: locked camera.
+#: on, whatever the camera's timing.  ``pulse`` does better only with the camera locked to the
+#: projector (``source.camera_lock``; or the IMX296's trigger on the projector's vsync), each
+#: exposure inside the one refresh its holes are lifted in.  In the twin (120 Hz projector,
+#: 60 Hz camera, 5 ms, mixed scene, seeds 1-6 over 5 s), co-located: locked pulse removes 0.953
+#: keeping 0.959 of the scene light, dim 0.938 / 0.958; on a free-running camera
+#: (``twin --camera-phase``, phases 0, 0.25, 0.5, 0.75 of a refresh) dim 0.940 / 0.958 and pulse
+#: 0.856 / 0.954 -- it reads every other frame (each pulse waits for the first exposure to begin
+#: once it is on screen) and the lifted holes stay on until that frame is read.  So ``auto``
+#: keeps ``dim`` on a free-running camera.
 HARDWARE_STRATEGY = "dim"
+#: what ``auto`` picks with the camera locked to the projector (``source.camera_lock``): pulsed
+#: holes, the twin's best co-located figures with a locked camera
+LOCKED_STRATEGY = "pulse"
 
 
 @dataclass(frozen=True)
@@ -533,8 +542,10 @@ def load_config(path: str | Path | None = None, overrides: dict[str, dict[str, A
     light = sections["light"]
     camera = sections["source"].spec.split(":")[0] == "camera"
     track = sections["track"]
+    lock = sections["source"].camera_lock
     if light.strategy == "auto":
-        light = dataclasses.replace(light, strategy=HARDWARE_STRATEGY if camera else "none")
+        light = dataclasses.replace(light, strategy=(LOCKED_STRATEGY if lock else HARDWARE_STRATEGY) if camera
+                                    else "none")
         if camera:
             track = dataclasses.replace(track, enabled=True)
     if light.depth == "auto":
@@ -550,6 +561,8 @@ def load_config(path: str | Path | None = None, overrides: dict[str, dict[str, A
     if light.strategy in ("flash", "pulse") and sections["run"].mode != "single":
         raise UsageError(f"light.strategy: {light.strategy} needs run.mode single (the exposure's light, the "
                          f"capture and the pattern take turns), got mode {sections['run'].mode}")
+    if lock:
+        _check_lock(sections["source"], sections["output"], sections["pattern"], light)
     if light.strategy == "coast" and not track.enabled:
         track = dataclasses.replace(track, enabled=True)  # coasting is what the tracker does
     if light.depth == "probe":
@@ -564,6 +577,29 @@ def load_config(path: str | Path | None = None, overrides: dict[str, dict[str, A
     return Config(source=sections["source"], detector=sections["detector"], detector_params=params,
                   pattern=sections["pattern"], output=sections["output"], run=sections["run"],
                   track=track, light=light)
+
+
+def _check_lock(source: "SourceConfig", output: Any, pattern: "PatternConfig", light: "LightConfig") -> None:
+    """What source.camera_lock needs, each missing piece a one-line UsageError (mode single comes with
+    pulse and flash)."""
+    def fail(why: str) -> None:
+        raise UsageError(f"source.camera_lock: {why}")
+
+    if source.spec.split(":")[0] != "camera":
+        fail(f"locks the camera (source camera), got source {source.spec!r}")
+    if "kms" not in output.outputs:
+        fail("needs output kms (its flips say when the projector's refreshes are), got "
+             + ", ".join(output.outputs))
+    if light.strategy not in ("pulse", "flash"):
+        fail(f"times the pulse or the flash to the exposure: needs light.strategy pulse or flash, got {light.strategy}")
+    refresh_ms = 1e3 / pattern.refresh_hz
+    if not 0 < source.camera_exposure_ms <= refresh_ms:
+        fail(f"needs a fixed camera_exposure_ms inside one projector refresh (0 < exposure <= {refresh_ms:.2f} ms "
+             f"at {pattern.refresh_hz:g} Hz), got {source.camera_exposure_ms or 'automatic'}")
+    turns = pattern.refresh_hz / source.camera_fps
+    if abs(turns - round(turns)) > 1e-3 or round(turns) < 1:
+        fail(f"needs the camera's frame period a whole number of projector refreshes, got camera_fps "
+             f"{source.camera_fps:g} with pattern.refresh_hz {pattern.refresh_hz:g}")
 
 
 def _has_baseline(path: str) -> bool:

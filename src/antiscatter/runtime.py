@@ -63,6 +63,7 @@ EXTRA_COLUMNS = (
     "Output Duration (s)",
     "End-to-end Latency (s)",
     "Dropped Frames",
+    "Exposure Phase Error (s)",
 )
 
 
@@ -354,6 +355,10 @@ class _Pipeline:
         # pulse: while the camera exposes, the last pattern with its holes lifted to dim_level
         self.pulse_level = round(light.dim_level * 255) if light.strategy == "pulse" else None
         self.exposing = self.flash_image is not None or self.pulse_level is not None
+        # the camera locked to the projector: the exposure's light goes out with each new pattern,
+        # the pattern itself once that light's refresh is over (run_locked)
+        self.locked = config.source.camera_lock
+        self.phase_error_ns: int | None = None  # locked: the last exposure's start against its target
         # each hole's own light (dim, or pulse while the camera exposes): tracked, not probed
         self.levels = (HoleLevels(light.dim_level, floor=min(light.min_level, light.dim_level),
                                   rest=light.rest if self.probe is None else 0)
@@ -530,6 +535,32 @@ class _Pipeline:
         rec.t_processed = t_start
         return rec
 
+    def _expose(self, rec: _Record, shown: np.ndarray) -> np.ndarray:
+        """The light the next exposure is taken under: with pulse the pattern with its holes lifted
+        (kept as ``pulse_image``), else the pattern ``shown``, which is kept as ``last_pattern``."""
+        exposed = shown
+        if self.exposing:
+            # flash and pulse run in mode single: the next capture, and the restore after it, come
+            # before the next pattern is drawn, so these buffers are still intact then (no copies)
+            self.last_pattern = shown
+            if self.pulse_level is not None:
+                if rec.exposure is not None and self.light_on:  # drawn lifted: probing's halves, levels, prediction
+                    self.pulse_image = exposed = rec.exposure
+                else:
+                    # cv2.max: a tenth of np.maximum's time against a scalar (43 against 420 us at 1280x800)
+                    self.pulse_image = exposed = cv2.max(shown, self.pulse_level, dst=self._lifted)
+                    self._lifted = self.pulse_image
+        return exposed
+
+    def after_exposure(self, rec: _Record) -> None:
+        """Locked camera: the pattern on every output once the exposure's light has had its refresh
+        (``kms`` waits for that light's flip, so the pattern lands at the next one)."""
+        image = self.last_pattern if self.last_pattern is not None else self.full_image
+        if not self.light_on:
+            image = np.zeros_like(image)
+        for output in self.outputs:
+            output.show(image, rec.frame, rec.detections)
+
     def flash(self) -> int:
         """Show the next exposure's light on every output -- the uniform detection flash, or the
         last pattern with its holes lifted (pulse); the time it went on (monotonic ns)."""
@@ -560,8 +591,16 @@ class _Pipeline:
             if self._dark is None or self._dark.shape != shown.shape:
                 self._dark = np.zeros_like(shown)
             shown = self._dark
-        for output in self.outputs:
-            output.show(shown, rec.frame, rec.detections)
+        if self.locked:  # the next exposure's light now; the pattern once it has been on (after_exposure)
+            exposed = self._expose(rec, shown)
+            light = self.flash_image if self.flash_image is not None else exposed
+            if not self.light_on:
+                light = shown
+            for output in self.outputs:
+                output.flash(light)
+        else:
+            for output in self.outputs:
+                output.show(shown, rec.frame, rec.detections)
         t_out = clock()
         shown_ns = time.monotonic_ns()  # the pattern is out: what follows is off the latency path
         if rec.learned is not None:
@@ -574,18 +613,8 @@ class _Pipeline:
         # single mode: the next exposure is taken under this pattern (not under a flash)
         self.unlit_ids = rec.hole_ids if self.light_on and self.flash_image is None else None
         self.rested_ids = rec.rested_ids if self.unlit_ids is not None else None
-        exposed = shown
-        if self.exposing:
-            # flash and pulse run in mode single: the next capture, and the restore after it, come
-            # before the next pattern is drawn, so these buffers are still intact then (no copies)
-            self.last_pattern = shown
-            if self.pulse_level is not None:
-                if rec.exposure is not None and self.light_on:  # drawn lifted: probing's halves, levels, prediction
-                    self.pulse_image = exposed = rec.exposure
-                else:
-                    # cv2.max: a tenth of np.maximum's time against a scalar (43 against 420 us at 1280x800)
-                    self.pulse_image = exposed = cv2.max(shown, self.pulse_level, dst=self._lifted)
-                    self._lifted = self.pulse_image
+        if not self.locked:
+            exposed = self._expose(rec, shown)
         if self.probe is not None:  # mode single: the buffer stays intact until the next frame is processed
             self.shown_exposure = exposed if self.light_on else None
         if self.compensate:  # what the next exposure will be lit by: this pattern on the scene
@@ -622,6 +651,8 @@ class _Pipeline:
             row[index_of["Frame"]] = frame.index
             row[index_of["Capture Timestamp (ns)"]] = frame.timestamp_ns
             row[index_of["Dropped Frames"]] = dropped
+            if self.phase_error_ns is not None:
+                row[index_of["Exposure Phase Error (s)"]] = f"{self.phase_error_ns / 1e9:.9f}"
             self.metrics_writer.writerow(row)
         if self.detections_writer is not None and len(detections):
             if rec.track_ids is None:
@@ -759,6 +790,8 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
         elif rc.mode.startswith("processes"):
             _run_processes(pipeline, source, stop, rc, config,
                            transport="pickle" if rc.mode == "processes-pickle" else "shm")
+        elif pipeline.locked:
+            _run_locked(pipeline, source, stop, rc)
         else:
             _run_single(pipeline, source, stop, rc)
         summary.wall_s = (time.perf_counter_ns() - started) / 1e9
@@ -844,6 +877,53 @@ def _run_single(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: 
         if pipeline.emit(pipeline.process(frame, t0, t1), stale):
             summary.stop_reason = "stopped from the window (e)"
             return
+
+
+def _run_locked(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: Any) -> None:
+    """Mode single with the camera locked to the projector (``source.camera_lock``).
+
+    Each frame read nudges the camera's next frame durations (:class:`~antiscatter.lock.PhaseLock`)
+    so that exposures begin in the middle of the refresh before the one that lands after it:
+    a frame is processed, its exposure light (the pattern with its holes lifted, or the flash)
+    goes out at the next flip, the pattern itself at the one after -- the first exposure to begin
+    once that light is on screen is taken under it whole, every frame (the twin's locked camera).
+    Frames whose exposure began before the light was on screen are skipped and counted as dropped
+    (at most ``MAX_STALE_FRAMES`` in a row: until the lock holds, or when a frame took too long).
+    """
+    from .lock import PhaseLock
+
+    summary = pipeline.summary
+    config = pipeline.config
+    display = next((o for o in pipeline.outputs if o.name == "kms"), None)
+    if display is None:
+        raise UsageError("source.camera_lock: needs output kms (its flips say when the projector's refreshes are)")
+    refresh_ns = int(round(1e9 / config.pattern.refresh_hz))
+    exposure_ns = int(round(config.source.camera_exposure_ms * 1e6))
+    lock = PhaseLock(refresh_ns, int(round(1e9 / config.source.camera_fps)), (refresh_ns - exposure_ns) // 2,
+                     shortest_ns=getattr(source, "shortest_frame_ns", 0))
+    lit_ns = 0  # when the last exposure light went on screen (its flip); the full lamp until the first
+    while True:
+        if _finished(summary, stop, rc):
+            return
+        frame, t0, t1 = _timed_read(source)
+        stale = 0
+        while True:
+            if frame is not None and display.presented_ns:  # every exposure measures the phase
+                source.set_frame_duration_ns(lock.update(frame.exposure_start_ns, display.presented_ns))
+                pipeline.phase_error_ns = lock.error_ns
+            if frame is None or frame.exposure_start_ns >= lit_ns or stale >= MAX_STALE_FRAMES:
+                break
+            stale += 1
+            frame, t0, t1 = _timed_read(source)
+        if frame is None:
+            summary.stop_reason = "source ended"
+            return
+        rec = pipeline.process(frame, t0, t1)
+        if pipeline.emit(rec, stale):
+            summary.stop_reason = "stopped from the window (e)"
+            return
+        pipeline.after_exposure(rec)
+        lit_ns = display.presented_ns  # (kms waited for the light's flip before the pattern's)
 
 
 def _run_threads(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: Any) -> None:

@@ -150,3 +150,136 @@ def test_off_the_pi_kms_needs_pykms():
     except ImportError:
         with pytest.raises(UsageError, match="output 'kms' needs the pykms module"):
             load_pykms()
+
+
+REFRESH_NS = 1_000_000_000 // 120
+
+
+class VirtualCard(Card):
+    """A 120 Hz display in virtual time (``clock``, a one-item list of ns): a flip lands at the first
+    vertical blank after it was asked for, and reading its event moves the clock on to then (as
+    waiting for it would).  ``landed`` keeps each flip's time and the least value it showed."""
+
+    clock: list = [0]
+    buffers: dict = {}
+
+    cards: list = []
+
+    def __init__(self):
+        super().__init__()
+        self.landed = []
+        VirtualCard.cards.append(self)
+
+    def flip(self, fb, data):
+        lands = (self.clock[0] // REFRESH_NS + 1) * REFRESH_NS
+        self.landed.append((lands, int(VirtualCard.buffers[fb].pixels()[..., 0].min())))
+        self.events.append(types.SimpleNamespace(type=EventType.FLIP_COMPLETE, seq=len(self.commits),
+                                                 time=lands / 1e9, data=data))
+        os.write(self.write_fd, b"x")
+
+    def read_events(self):
+        events = super().read_events()
+        for event in events:
+            self.clock[0] = max(self.clock[0], int(round(event.time * 1e9)))
+        return events
+
+
+class RegisteredFramebuffer(DumbFramebuffer):
+    """A dumb buffer of any size, found by its id."""
+
+    def __init__(self, card, width, height, fourcc):
+        super().__init__(card, width, height, fourcc)
+        self.width, self.pitch = width, width * 4 + 32
+        self.file.truncate(self.pitch * height)
+        VirtualCard.buffers[self.id] = self
+
+    def size(self, plane):
+        return self.pitch * self.height
+
+    def stride(self, plane):
+        return self.pitch
+
+    def pixels(self):
+        self.file.seek(0)
+        raw = np.frombuffer(self.file.read(), np.uint8).reshape(self.height, self.pitch)
+        return raw[:, : self.width * 4].reshape(self.height, self.width, 4)
+
+
+def test_the_camera_locked_to_the_projector_takes_every_exposure_under_the_lifted_holes(tmp_path, monkeypatch):
+    # a free-running 60 Hz camera, its clock 50 ppm fast, its exposures 5.1 ms into a refresh at
+    # first, each new frame duration applied 3 frames late, its frames 16.56 ms at the shortest;
+    # processing takes 5 ms.  Two discs cross the view.  The loop pulls
+    # the exposures to the middle of the refresh in which each lifted pattern is on, and from then
+    # on every frame is read and taken under it -- the twin's locked camera.
+    import collections
+    import csv
+    import io
+
+    from conftest import draw_discs
+
+    import antiscatter.outputs.kms as kms_module
+    from antiscatter.config import load_config
+    from antiscatter.runtime import run
+    from antiscatter.sources.base import Frame, FrameSource
+
+    clock = VirtualCard.clock = [1_000_000_000]
+    exposure, period, latency = 4_000_000, 2 * REFRESH_NS, 5_000_000
+    pykms = fake_pykms()
+    pykms.Card, pykms.DumbFramebuffer = VirtualCard, RegisteredFramebuffer
+    display = types.SimpleNamespace(hdisplay=320, vdisplay=200, to_blob=lambda card: types.SimpleNamespace(id=7))
+    resources = pykms.ResourceManager(None)
+    resources.reserve_connector().get_default_mode = lambda: display
+    monkeypatch.setattr(kms_module, "load_pykms", lambda: pykms)
+
+    class VirtualCamera(FrameSource):
+        live, size, shortest_frame_ns = True, (160, 120), 16_560_000
+
+        def __init__(self):
+            self.next_start = clock[0] + 5_100_000
+            self.requested, self.durations = period, collections.deque([period] * 3)
+            self.exposures, self.made = [], 0
+
+        def set_frame_duration_ns(self, ns):
+            self.requested = ns
+
+        def read(self):
+            while True:  # frames that ended before they were asked for are gone (no queue)
+                start, end = self.next_start, self.next_start + exposure
+                self.durations.append(self.requested)
+                self.next_start = start + round(self.durations.popleft() * (1 + 50e-6))
+                self.made += 1
+                if end > clock[0]:
+                    break
+            if len(self.exposures) == 90:
+                return None
+            self.exposures.append((start, end, self.made))
+            clock[0] = end + latency  # read as it ends, processed meanwhile
+            k = len(self.exposures)
+            image = draw_discs(self.size, [(30.0 + k, 50.0, 5.0), (120.0 - k, 80.0, 4.0)])
+            return Frame(image, len(self.exposures) - 1, start + exposure // 2, exposure)
+
+    metrics = tmp_path / "m.csv"
+    config = load_config(overrides={"source": {"spec": "camera", "camera_lock": True, "camera_exposure_ms": 4.0},
+                                    "output": {"outputs": ("kms",)}, "run": {"metrics": str(metrics)},
+                                    "track": {"latency_ms": 5.0},  # (the loop's own clock is not virtual)
+                                    "light": {"levels": "fixed"}})  # (every lifted hole at dim_level)
+    assert config.light.strategy == "pulse"  # auto, with the camera locked
+    camera = VirtualCamera()
+    summary = run(config, source=camera, log=io.StringIO(), out=io.StringIO())
+    landed = VirtualCard.cards[-1].landed  # each flip: when it landed, the least value it showed
+    rows = list(csv.DictReader(metrics.open()))
+    assert summary.frames == len(rows) and summary.frames + summary.dropped == 90
+    # locked within 20 frames: from then on every frame the camera made was read (none skipped,
+    # none gone while the loop was busy), each exposed whole inside a refresh of lifted holes
+    settled = camera.exposures[20:]
+    assert [m for _, _, m in settled] == list(range(settled[0][2], settled[0][2] + len(settled)))
+    assert all(int(r["Dropped Frames"]) == 0 for r in rows[20:])
+    lifted = round(config.light.dim_level * 255)
+    for start, end, _ in settled:
+        before = [(t, least) for t, least in landed if t <= start]
+        after = [t for t, _ in landed if t > start]
+        assert before[-1][1] >= lifted and end <= after[0], (start, end, before[-1])  # the holes lifted
+    # ... and between exposures the holes dark: the pattern (its holes at 0) follows each light
+    assert sum(least == 0 for _, least in landed[40:]) >= len(landed[40:]) // 2 - 1
+    errors = [abs(float(r["Exposure Phase Error (s)"])) for r in rows[20:]]
+    assert max(errors) < 0.05 / 120

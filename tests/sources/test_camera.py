@@ -29,6 +29,7 @@ class FakePicamera2:
         self.config = None
         self.started = self.closed = False
         self.requests = []
+        self.set = []
         FakePicamera2.instances.append(self)
 
     def create_video_configuration(self, main, buffer_count, queue, controls):
@@ -52,6 +53,11 @@ class FakePicamera2:
         request = FakeRequest(image, 1_000_000_000 + n * 16_666_667)
         self.requests.append(request)
         return request
+
+    camera_controls = {"FrameDurationLimits": (16560, 15000000, 16667)}  # (min, max, default) us, as the IMX296's
+
+    def set_controls(self, controls):
+        self.set.append(controls)
 
     def stop(self):
         self.started = False
@@ -181,3 +187,14 @@ def test_the_config_and_the_camera_accept_the_same_exposures(fps, exposure, gain
     except ValueError:
         config_ok = False
     assert camera_ok == config_ok
+
+
+def test_the_phase_lock_nudges_the_frame_duration_within_what_the_sensor_can_do():
+    source = CameraSource(size=(64, 48), fps=60.0, exposure_ms=4.0, picamera2=FakePicamera2)
+    cam = FakePicamera2.instances[-1]
+    assert source.shortest_frame_ns == 16_560_000
+    source.set_frame_duration_ns(16_766_400)
+    assert cam.set == [{"FrameDurationLimits": (16766, 16766)}]  # whole us, as libcamera takes them
+    cam.camera_controls = {}
+    assert source.shortest_frame_ns == 0  # a camera that does not say: no limit known
+    source.close()

@@ -145,6 +145,19 @@ class CameraSource(FrameSource):
         self._count += 1
         return frame
 
+    @property
+    def shortest_frame_ns(self) -> int:
+        """The shortest frame the sensor can give in this configuration (``FrameDurationLimits``'
+        minimum, us), 0 when the camera does not say."""
+        limits = getattr(self._cam, "camera_controls", {}).get("FrameDurationLimits")
+        return int(limits[0]) * 1000 if limits and limits[0] else 0
+
+    def set_frame_duration_ns(self, duration_ns: int) -> None:
+        """Ask for frames of ``duration_ns`` (whole us) from now on; the sensor applies it a few
+        frames later (the software phase lock, :mod:`antiscatter.lock`)."""
+        us = int(round(duration_ns / 1000))
+        self._cam.set_controls({"FrameDurationLimits": (us, us)})
+
     def close(self) -> None:
         try:
             self._cam.stop()

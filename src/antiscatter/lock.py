@@ -1,0 +1,95 @@
+"""Locking the camera's exposures to the projector's refresh in software.
+
+The Pi camera free-runs: each frame lasts its ``FrameDurationLimits``, on the
+sensor's own clock.  The projector flips on its vertical blank, on the
+display's.  A pulse or a flash can be timed to an exposure only if the exposure
+begins at a known moment of the projector's refresh.  Without the sensor's
+trigger input wired to the projector's vsync, the loop does what software
+camera synchronisation does (Raspberry Pi's libcamera sync, rpicam-apps
+``--sync``; the frame-rate "PLL" hacks before it): it measures where each
+exposure began against the display's last vertical blank and lengthens or
+shortens the camera's next frame to pull the exposures to ``target`` after a
+blank.  The sensor applies a new frame duration a few frames late, so the
+correction is a share (``gain``) of the error left once the corrections already
+asked for have applied; it is also bounded by what the sensor can do (``shortest_ns``: its
+shortest frame) and by ``step_ns`` a frame.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+__all__ = ["PhaseLock", "GAIN", "DELAY", "LOCKED_WITHIN"]
+
+#: the frames a new duration may take to apply: the corrections asked for that long ago or less
+#: are taken as still to come (a Smith predictor), so the loop does not ask for them again
+DELAY = 4
+#: the share of the predicted phase error corrected a frame.  Simulated at 60 frames/s on a 120 Hz
+#: display, from 17 phases across a refresh, with the IMX296's shortest frame (16.56 ms: it can
+#: barely shorten one), a sensor clock 50 ppm off and durations applied 1 to 6 frames late: 0.3
+#: locks within 29 frames (within LOCKED_WITHIN from then on) and holds 6-7 us from the target;
+#: 0.4 within 33, 0.5 does not lock with 6 frames' delay; without the predictor 0.2 does not
+#: lock with 5 or more
+GAIN = 0.3
+#: the exposures count as locked once they begin within this share of a refresh of the target
+LOCKED_WITHIN = 0.05
+
+
+@dataclass
+class PhaseLock:
+    """Frame durations that pull each exposure's start to ``target_ns`` after a vertical blank.
+
+    refresh_ns: the display's refresh period; period_ns: the camera's nominal frame period (a
+    whole number of refreshes); shortest_ns: the shortest frame the sensor can give (0: no limit);
+    step_ns: the most a frame is lengthened or shortened (default a quarter refresh);
+    delay: the frames a new duration may take to apply (``DELAY``).
+    error_ns: the last exposure's start against the target (> 0: late), after :meth:`update`.
+    """
+
+    refresh_ns: int
+    period_ns: int
+    target_ns: int
+    gain: float = GAIN
+    shortest_ns: int = 0
+    step_ns: int = 0
+    delay: int = DELAY
+    error_ns: int | None = field(default=None, init=False)
+    _coming: deque = field(default_factory=deque, init=False, repr=False)  # the corrections still to apply
+
+    def __post_init__(self) -> None:
+        if self.refresh_ns <= 0 or self.period_ns <= 0:
+            raise ValueError(f"refresh_ns, period_ns: got {self.refresh_ns}, {self.period_ns}, allowed > 0")
+        turns = self.period_ns / self.refresh_ns
+        if abs(turns - round(turns)) > 1e-3 or round(turns) < 1:
+            raise ValueError(f"period_ns: got {self.period_ns}, allowed a whole number of refreshes "
+                             f"({self.refresh_ns} ns)")
+        if not 0 <= self.target_ns < self.refresh_ns:
+            raise ValueError(f"target_ns: got {self.target_ns}, allowed 0 <= target < one refresh ({self.refresh_ns} ns)")
+        if not (math.isfinite(self.gain) and 0 < self.gain <= 1):
+            raise ValueError(f"gain: got {self.gain}, allowed 0 < gain <= 1")
+        self.step_ns = self.step_ns or self.refresh_ns // 4
+        self._coming = deque([0] * self.delay, maxlen=self.delay) if self.delay else deque(maxlen=0)
+
+    def update(self, exposure_start_ns: int, vblank_ns: int) -> int:
+        """The next frame's duration (ns) after an exposure that began at ``exposure_start_ns``,
+        with a vertical blank at ``vblank_ns`` (any one: they repeat every refresh)."""
+        r = self.refresh_ns
+        late = (exposure_start_ns - vblank_ns - self.target_ns) % r
+        # late by `late`, or early by r - late: the nearer, unless the sensor would close a late error
+        # sooner the long way round (it may barely shorten its frames: the IMX296 gives 60.4 frames/s
+        # at most) -- never within a quarter refresh of the target, where the lock's own overshoot
+        # would otherwise send it round again
+        shorten = min(self.step_ns, self.period_ns - self.shortest_ns) if self.shortest_ns else self.step_ns
+        long_way = late > r // 2 or (late > r // 4 and (r - late) * shorten < late * self.step_ns)
+        self.error_ns = late - r if long_way else late
+        predicted = self.error_ns - sum(self._coming)  # once the corrections on their way have applied
+        correction = max(-self.step_ns, min(shorten, round(self.gain * predicted)))
+        self._coming.append(correction)
+        return self.period_ns - correction
+
+    @property
+    def locked(self) -> bool:
+        """Whether the last exposure began within ``LOCKED_WITHIN`` of a refresh of the target."""
+        return self.error_ns is not None and abs(self.error_ns) <= LOCKED_WITHIN * self.refresh_ns

@@ -1,0 +1,57 @@
+"""The software camera-projector lock against a simulated free-running sensor."""
+
+import collections
+
+import numpy as np
+import pytest
+
+from antiscatter.lock import LOCKED_WITHIN, PhaseLock
+
+REFRESH = 1_000_000_000 // 120
+PERIOD = 2 * REFRESH
+TARGET = (REFRESH - 4_000_000) // 2  # a 4 ms exposure in the middle of a refresh
+
+
+def locked_from(start_ns, *, delay, shortest=16_560_000, ppm=50.0, frames=120):
+    """Frames until a sensor whose clock runs ``ppm`` fast, applying each new duration ``delay``
+    frames late, begins every exposure within LOCKED_WITHIN of the target; and its last errors."""
+    lock = PhaseLock(REFRESH, PERIOD, TARGET, shortest_ns=shortest)
+    applied = collections.deque([PERIOD] * delay)
+    start, errors = start_ns, []
+    for _ in range(frames):
+        applied.append(lock.update(start, 0))  # (a vertical blank at 0: they repeat every refresh)
+        errors.append(lock.error_ns)
+        duration = applied.popleft()
+        assert duration >= shortest
+        start += round(max(duration, shortest) * (1 + ppm * 1e-6))
+    inside = np.abs(errors) <= LOCKED_WITHIN * REFRESH
+    first = next((k for k in range(frames) if inside[k:].all()), None)
+    return first, errors[-10:]
+
+
+@pytest.mark.parametrize("delay", [1, 2, 4, 6])
+def test_the_lock_holds_the_exposures_at_the_target_from_any_phase(delay):
+    for start in range(0, REFRESH, REFRESH // 9):
+        first, last = locked_from(start, delay=delay)
+        assert first is not None and first <= 30, (start, first)
+        assert max(abs(e) for e in last) < 10_000  # a clock 50 ppm off: a few us from the target
+
+
+def test_a_late_exposure_is_caught_up_the_long_way_round_when_the_sensor_cannot_shorten_its_frames():
+    lock = PhaseLock(REFRESH, PERIOD, TARGET, shortest_ns=16_560_000, delay=0)
+    # 3 ms late: shortening by at most 0.1 ms a frame would take 30 frames; lengthening closes it
+    assert lock.update(TARGET + 3_000_000, 0) > PERIOD and lock.error_ns == 3_000_000 - REFRESH
+    # 1 ms late (within a quarter refresh): shortened, as much as the sensor can
+    assert lock.update(TARGET + 1_000_000, 0) == 16_560_000 and lock.error_ns == 1_000_000
+    free = PhaseLock(REFRESH, PERIOD, TARGET, delay=0)  # a sensor that can shorten its frames
+    assert free.update(TARGET + 3_000_000, 0) == PERIOD - round(free.gain * 3_000_000)
+    assert not free.locked and free.update(TARGET + 1000, 7 * REFRESH) and free.locked  # any blank will do
+
+
+def test_bad_lock_settings_are_refused():
+    with pytest.raises(ValueError, match="period_ns: got 20000000, allowed a whole number of refreshes"):
+        PhaseLock(REFRESH, 20_000_000, TARGET)
+    with pytest.raises(ValueError, match="target_ns: got .*, allowed 0 <= target < one refresh"):
+        PhaseLock(REFRESH, PERIOD, REFRESH)
+    with pytest.raises(ValueError, match="gain: got 0, allowed 0 < gain <= 1"):
+        PhaseLock(REFRESH, PERIOD, TARGET, gain=0)
