@@ -322,15 +322,18 @@ def test_scoreboard_long_table(monkeypatch):
 
     def small(run, **kw):
         seen.append((run.mapping, run.strategy, run.predict, kw["geometry"].baseline_m, kw["latency_ms"],
-                     kw["frames"], kw["seed"]))
+                     kw["frames"], kw["seed"], kw["geometry"].camera_phase))
         return real(run, **{**kw, "geometry": dataclasses.replace(kw["geometry"], camera_size=(160, 120))})
 
     monkeypatch.setattr(twin, "simulate_loop", small)
     rows = _long_rows(3, lambda s: None, seeds=2, workers=1)
     assert [(r["baseline_m"], r["latency_ms"]) for r in rows] == [(b, lat) for b, lat, *_ in LONG_RUNS]
-    assert [r["run"] for r in rows] == ["default, calibrated, dim, predict", "default, calibrated, pulse, predict",
-                                        "default, probe, dim, predict", "default, probe, pulse, predict",
-                                        "default, probe, pulse", "default, probe, pulse, predict"]
+    assert [r["run"] for r in rows] == ["default, calibrated, dim, predict", "default, calibrated, pulse, predict"] * 2 + [
+        "default, probe, dim, predict", "default, probe, pulse, predict", "default, probe, pulse",
+        "default, probe, pulse, predict"]
+    assert [r["camera"] for r in rows] == ["locked"] * 2 + ["free"] * 2 + ["locked"] * 4
+    # the free-running camera's scenes each at its own phase of the refresh, the locked ones at none
+    assert [s[7] for s in seen[4:8]] == [0.0, 0.25, 0.0, 0.25] and {s[7] for s in seen[8:]} == {None}
     # every loop run as long as asked, over each of the scenes, and each row the mean of its own two
     assert {s[5] for s in seen} == {3} and [s[6] for s in seen] == [1, 2] * len(LONG_RUNS)
     assert seen[-1][:5] == ("probe", "pulse", True, 0.12, 20.0)

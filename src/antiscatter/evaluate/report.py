@@ -228,10 +228,14 @@ def scoreboard(*, scenarios: dict[str, Any], catalogue_version: int, detectors: 
                    f"{twin_frames}-frame run the start-up (the first frame lit in full before any pattern is "
                    "ready, the detector's warm-up, the first tracks' confirmation) is a large share of the "
                    "light. \"Steady\" is from frame "
-                   f"{steady_from(twin_long_frames)} on, as above.", ""]
+                   f"{steady_from(twin_long_frames)} on, as above. Camera \"locked\": each exposure at the "
+                   "start of a refresh (the trigger on the projector's vsync, or `run --camera-lock`); \"free\": "
+                   "a free-running camera, scene k's exposures starting "
+                   + ", ".join(f"{p:g}" for p in FREE_PHASES) + " of a refresh in (k = 1, 2, ...), pulse run as "
+                   "`run` runs it there (`twin --camera-phase`).", ""]
             rows = _long_rows(twin_long_frames, log, seeds=twin_long_seeds)
             md += _table(rows, [("baseline_m", "baseline (m)", "{:g}"), ("latency_ms", "latency (ms)", "{:g}"),
-                                ("run", "system", ""), *_TWIN_FIGURES])
+                                ("run", "system", ""), ("camera", "camera", ""), *_TWIN_FIGURES])
             data["twin_long"] = rows
     return "\n".join(md) + "\n", data
 
@@ -287,11 +291,15 @@ def _loop_rows(jobs: list[tuple], seeds: int, log: Callable[[str], None],
     return rows
 
 
-#: the long-run table's loops: (baseline m, latency ms, run's mapping, strategy, predict) -- the
-#: co-located goal's strategies, the 12 cm goal's, and the prediction's gain at 20 ms
-LONG_RUNS = ((0.0, 5.0, "calibrated", "dim", True), (0.0, 5.0, "calibrated", "pulse", True),
-             (0.12, 5.0, "probe", "dim", True), (0.12, 5.0, "probe", "pulse", True),
-             (0.12, 20.0, "probe", "pulse", False), (0.12, 20.0, "probe", "pulse", True))
+#: the long-run table's loops: (baseline m, latency ms, run's mapping, strategy, predict, camera)
+#: -- the co-located goal's strategies, on a camera locked to the projector and on a free-running
+#: one (``free``: scene k's exposures FREE_PHASES[k % 4] of a refresh in), the 12 cm goal's, and
+#: the prediction's gain at 20 ms
+LONG_RUNS = ((0.0, 5.0, "calibrated", "dim", True, "locked"), (0.0, 5.0, "calibrated", "pulse", True, "locked"),
+             (0.0, 5.0, "calibrated", "dim", True, "free"), (0.0, 5.0, "calibrated", "pulse", True, "free"),
+             (0.12, 5.0, "probe", "dim", True, "locked"), (0.12, 5.0, "probe", "pulse", True, "locked"),
+             (0.12, 20.0, "probe", "pulse", False, "locked"), (0.12, 20.0, "probe", "pulse", True, "locked"))
+FREE_PHASES = (0.0, 0.25, 0.5, 0.75)
 
 
 def _long_rows(frames: int, log: Callable[[str], None], *, seeds: int = 6,
@@ -300,9 +308,13 @@ def _long_rows(frames: int, log: Callable[[str], None], *, seeds: int = 6,
     ``seeds`` scenes."""
     from ..twin import TwinRun
 
-    jobs = [(TwinRun("contrast", mapping, strategy, predict), baseline, latency, seed, frames, 0.0, 0.0)
-            for baseline, latency, mapping, strategy, predict in LONG_RUNS for seed in range(1, seeds + 1)]
-    return _loop_rows(jobs, seeds, log, workers)
+    jobs = [(TwinRun("contrast", mapping, strategy, predict), baseline, latency, seed, frames, 0.0, 0.0,
+             FREE_PHASES[(seed - 1) % len(FREE_PHASES)] if camera == "free" else None)
+            for baseline, latency, mapping, strategy, predict, camera in LONG_RUNS for seed in range(1, seeds + 1)]
+    rows = _loop_rows(jobs, seeds, log, workers)
+    for row, entry in zip(rows, LONG_RUNS):
+        row["camera"] = entry[5]
+    return rows
 
 
 #: the scoreboard's projector lens: aperture (mm) and the distances it is focused at (m)
@@ -375,9 +387,9 @@ def _twin_job(job: tuple) -> dict[str, Any]:
     """One closed loop of a twin table (a process of its own), without its per-frame series."""
     from ..twin import TwinGeometry, simulate_loop
 
-    run, baseline, latency, seed, frames, aperture, focus = job
+    run, baseline, latency, seed, frames, aperture, focus, *phase = job  # (phase: a free-running camera's)
     out = simulate_loop(run, geometry=TwinGeometry(baseline_m=baseline, projector_aperture_m=aperture,
-                                                   projector_focus_m=focus),
+                                                   projector_focus_m=focus, camera_phase=(phase or [None])[0]),
                         frames=frames, latency_ms=latency, seed=seed)
     out.pop("series")
     return out
