@@ -763,8 +763,11 @@ def test_the_vehicles_default_configuration_runs_on_a_live_source(tmp_path):
         assert config.light.depth == ("probe" if probing else "fixed") and config.light.compensate == probing
         for stale in (tmp_path / "p").glob("*.png") if (tmp_path / "p").exists() else ():
             stale.unlink()
-        summary = run(config, source=LiveCamera(), log=io.StringIO(), out=io.StringIO())
+        log = io.StringIO()
+        summary = run(config, source=LiveCamera(), log=log, out=io.StringIO())
         assert summary.frames == 20 and summary.dropped == 0
+        # pulsed on a free-running camera: said to read every other frame, and what times it instead
+        assert ("reads every other frame" in log.getvalue() and "--camera-lock" in log.getvalue()) == pulsed
         rows = list(csv.DictReader((tmp_path / "d.csv").open()))
         assert len(rows) >= 30 and all(int(r["track_id"]) > 0 for r in rows)
         assert len({r["track_id"] for r in rows}) <= 6  # two particles, few identities

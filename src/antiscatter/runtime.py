@@ -778,6 +778,11 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
         print(f"antiscatter run: source {config.source.spec} ({source.size[0]}x{source.size[1]}), "
               f"detector {detector.name}{tracking}, pattern {config.pattern.width}x{config.pattern.height}, "
               f"output {names}, mode {rc.mode}, light strategy {config.light.strategy}", file=log)
+        if (config.light.strategy in ("pulse", "flash") and getattr(source, "live", False)
+                and not config.source.camera_lock):
+            print(f"note: {config.light.strategy} on a free-running camera reads every other frame, each exposure "
+                  "begun once its light is on screen (in the twin, co-located, pulse removed 0.856 against dim's "
+                  "0.940); --camera-lock times the exposures to the projector", file=log)
         pipeline = _Pipeline(config, detector, tracker, source, calibration, outputs, metrics_writer,
                              detections_writer, columns, summary, buffers=1 if rc.mode == "single" else 3)
         stack.callback(pipeline.stop_recording, wait=True)  # a recording is finished however the run ends
