@@ -488,7 +488,8 @@ def test_pulse_with_prediction_lifts_holes_drawn_for_the_next_exposures_refresh(
     assert shift == pytest.approx(ahead, abs=1.5)
 
 
-def test_strategy_flash_skips_frames_exposed_before_the_flash():
+@pytest.mark.parametrize("lag_ms", [0.0, 5.0])
+def test_strategy_flash_skips_frames_exposed_before_the_flash(lag_ms):
     from antiscatter.config import load_config
     from antiscatter.runtime import run
     from antiscatter.sources.base import Frame, FrameSource
@@ -510,11 +511,14 @@ def test_strategy_flash_skips_frames_exposed_before_the_flash():
             if self.count > 12:
                 return None
             now = FrameSource.now_ns()
-            start = now - 1_000_000 if self.count % 2 else now + refresh + 1_000_000
+            # with a display lag the flash is light on the scene that much later still: a frame that
+            # begins just after the refresh is then one to skip
+            early = now - 1_000_000 if not lag_ms else now + refresh + 1_000_000
+            start = early if self.count % 2 else now + refresh + round(lag_ms * 1e6) + 1_000_000
             return Frame(draw_discs(self.size, [(40.0, 40.0, 4.0)]), self.count - 1, start + exposure // 2, exposure)
 
     config = load_config(overrides={"light": {"strategy": "flash"}, "output": {"outputs": ("none",)},
-                                    "pattern": {"refresh_hz": 120.0}})
+                                    "pattern": {"refresh_hz": 120.0, "display_lag_ms": lag_ms}})
     camera = StaleCamera()
     summary = run(config, source=camera, log=__import__("io").StringIO(), out=__import__("io").StringIO())
     assert summary.frames == 6 and summary.dropped == 6  # each stale frame skipped, the fresh one used

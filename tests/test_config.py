@@ -138,3 +138,10 @@ def test_the_camera_lock_and_what_it_needs():
     for overrides, message in cases:
         with pytest.raises(UsageError, match="source.camera_lock: " + message):
             load_config(overrides=overrides)
+
+
+def test_the_display_lag_is_a_time_in_ms():
+    assert load_config(overrides={"pattern": {"display_lag_ms": 8.3}}).pattern.display_lag_ms == 8.3
+    for bad in (-1.0, float("nan"), 5000.0):
+        with pytest.raises(UsageError, match=f"pattern.display_lag_ms: got {bad}, allowed 0..1000 ms"):
+            load_config(overrides={"pattern": {"display_lag_ms": bad}})

@@ -124,6 +124,11 @@ class PatternConfig:
         ``light.depth = "probe"``); empty = none.
     refresh_hz: the projector's refresh rate (ML550: 120 Hz); with pulsed holes and prediction the
         pattern lifted for an exposure is on for a refresh, and its holes are drawn for its middle.
+    display_lag_ms: how long after a flip its image is light on the scene (0, the default; a DLP
+        projector that formats one frame while it shows the last lags a refresh): the exposures
+        under a pulse or flash, the camera lock's target and the prediction's horizon count it.
+        Measure it: the camera sees a flip's image in the frames whose exposure began this long
+        after it.
     """
 
     width: int = 1280
@@ -134,10 +139,13 @@ class PatternConfig:
     mapping: tuple = ()
     calibration: str = ""
     refresh_hz: float = 120.0
+    display_lag_ms: float = 0.0
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.refresh_hz) and self.refresh_hz > 0):
             raise ValueError(f"refresh_hz: got {self.refresh_hz}, allowed a number of refreshes a second > 0")
+        if not (math.isfinite(self.display_lag_ms) and 0 <= self.display_lag_ms <= 1000):
+            raise ValueError(f"display_lag_ms: got {self.display_lag_ms}, allowed 0..1000 ms")
         for name in ("width", "height"):  # the projector's pixels; three such buffers are kept
             if not 0 < getattr(self, name) <= MAX_PROJECTOR_SIDE:
                 raise ValueError(f"{name}: got {getattr(self, name)}, allowed 1..{MAX_PROJECTOR_SIDE}")

@@ -373,6 +373,8 @@ class _Pipeline:
                                     or (tracker is not None and config.track.predict))  # lifted pattern
                                 and self.pulse_level is not None else None)
         self.refresh_s = 1.0 / config.pattern.refresh_hz
+        self.display_lag_s = config.pattern.display_lag_ms / 1e3  # from a flip to its light on the scene
+        self.lift_at_ns = 0  # locked: the flip the next exposure's light is to land at (run_locked)
         self.compensate = bool(light.compensate) and light.strategy != "flash" and config.run.mode == "single"
         # the detector's learning for the next frames (stages marked ``after``) runs once the
         # pattern is out: in single mode by emit, with threads by the process thread meanwhile
@@ -431,7 +433,8 @@ class _Pipeline:
                 latency = tc.latency_ms / 1e3 if tc.latency_ms >= 0 else self.latency_estimate
                 # the pattern stays on until the next one, a frame period later: each hole where its
                 # particle is halfway through that time (PREDICT_AHEAD), not where it is when it goes on
-                holes = prediction.holes(captured + latency + PREDICT_AHEAD * (self.frame_period or 0.0))
+                holes = prediction.holes(captured + latency + self.display_lag_s
+                                         + PREDICT_AHEAD * (self.frame_period or 0.0))
             else:
                 holes = prediction.holes(captured)
             if self.frame_period is not None and self.compensate:
@@ -455,8 +458,8 @@ class _Pipeline:
                 # co-located, 12 scenes: 0.925 -> 0.928 removed)
                 period = self.frame_period or 0.0
                 started = captured - frame.exposure_ns / 2e9  # the camera's frames: stamped mid-exposure
-                next_exposure = started + (period * max(1, math.ceil(latency / period - 1e-9)) if period
-                                           else latency)
+                on = latency + self.display_lag_s  # until the pattern is light on the scene
+                next_exposure = started + (period * max(1, math.ceil(on / period - 1e-9)) if period else on)
                 exposure_holes = prediction.holes(next_exposure if self.probe is not None
                                                   else next_exposure + self.refresh_s / 2)
             if self.levels is not None:  # how bright each came back under its own hole (or probe: its verdict)
@@ -591,11 +594,16 @@ class _Pipeline:
             if self._dark is None or self._dark.shape != shown.shape:
                 self._dark = np.zeros_like(shown)
             shown = self._dark
-        if self.locked:  # the next exposure's light now; the pattern once it has been on (after_exposure)
+        if self.locked:  # the next exposure's light at its flip; the pattern once it has been on (after_exposure)
             exposed = self._expose(rec, shown)
             light = self.flash_image if self.flash_image is not None else exposed
             if not self.light_on:
                 light = shown
+            refresh_ns = int(round(self.refresh_s * 1e9))
+            display = next(o for o in self.outputs if o.name == "kms")
+            while display.next_flip_ns(refresh_ns) < self.lift_at_ns - refresh_ns // 2:  # flips to spare first:
+                for output in self.outputs:  # the new pattern in them
+                    output.show(shown, rec.frame, rec.detections)
             for output in self.outputs:
                 output.flash(light)
         else:
@@ -854,7 +862,7 @@ def _run_single(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: 
     light (the detection flash, or the last pattern with its holes lifted); a live
     source's frames whose exposure began before that light can have been on (the camera
     free-runs; the display takes it at its next refresh, up to one refresh period after
-    it was handed over) are skipped and counted as dropped, so the detector sees
+    it was handed over, and shows it ``pattern.display_lag_ms`` later) are skipped and counted as dropped, so the detector sees
     particles under that light; once the frame is in, the last pattern goes back on
     while it is processed.
     """
@@ -863,11 +871,12 @@ def _run_single(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: 
     flashing = pipeline.exposing
     live = getattr(source, "live", False)
     refresh_ns = int(round(pipeline.refresh_s * 1e9))
+    lag_ns = int(round(pipeline.display_lag_s * 1e9))  # from a flip to its light on the scene
     while True:
         if _finished(summary, stop, rc):
             return
         pacer.wait()
-        flash_on = pipeline.flash() + refresh_ns if flashing else 0  # on screen by then at the latest
+        flash_on = pipeline.flash() + refresh_ns + lag_ns if flashing else 0  # on by then at the latest
         frame, t0, t1 = _timed_read(source)
         stale = 0
         while flashing and live and frame is not None and frame.exposure_start_ns < flash_on \
@@ -888,12 +897,14 @@ def _run_locked(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: 
     """Mode single with the camera locked to the projector (``source.camera_lock``).
 
     Each frame read nudges the camera's next frame durations (:class:`~antiscatter.lock.PhaseLock`)
-    so that exposures begin in the middle of the refresh before the one that lands after it:
-    a frame is processed, its exposure light (the pattern with its holes lifted, or the flash)
-    goes out at the next flip, the pattern itself at the one after -- the first exposure to begin
-    once that light is on screen is taken under it whole, every frame (the twin's locked camera).
-    Frames whose exposure began before the light was on screen are skipped and counted as dropped
-    (at most ``MAX_STALE_FRAMES`` in a row: until the lock holds, or when a frame took too long).
+    so that exposures begin in the middle of a refresh's light (``pattern.display_lag_ms`` after
+    its flip).  A frame is processed; its exposure light (the pattern with its holes lifted, or the
+    flash) goes out at the flip whose light covers the first exposure that can still be reached
+    (the flips before it show the new pattern), the pattern itself at the one after.  With no lag
+    and 5 ms of processing that is the next flip and every frame is taken whole under its light
+    (the twin's locked camera); a projector lagging a refresh gets every other frame.  Frames whose
+    exposure began before the light was on are skipped and counted as dropped (at most
+    ``MAX_STALE_FRAMES`` in a row: until the lock holds, or when a frame took too long).
     """
     from .lock import PhaseLock
 
@@ -903,10 +914,12 @@ def _run_locked(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: 
     if display is None:
         raise UsageError("source.camera_lock: needs output kms (its flips say when the projector's refreshes are)")
     refresh_ns = int(round(1e9 / config.pattern.refresh_hz))
+    period_ns = int(round(1e9 / config.source.camera_fps))
     exposure_ns = int(round(config.source.camera_exposure_ms * 1e6))
-    lock = PhaseLock(refresh_ns, int(round(1e9 / config.source.camera_fps)), (refresh_ns - exposure_ns) // 2,
+    lag_ns = int(round(pipeline.display_lag_s * 1e9))
+    lock = PhaseLock(refresh_ns, period_ns, ((refresh_ns - exposure_ns) // 2 + lag_ns) % refresh_ns,
                      shortest_ns=getattr(source, "shortest_frame_ns", 0))
-    lit_ns = 0  # when the last exposure light went on screen (its flip); the full lamp until the first
+    lit_ns = 0  # when the last exposure light went on (its flip + the lag); the full lamp until the first
     while True:
         if _finished(summary, stop, rc):
             return
@@ -924,11 +937,20 @@ def _run_locked(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: 
             summary.stop_reason = "source ended"
             return
         rec = pipeline.process(frame, t0, t1)
+        # the light's flip: the last before the first exposure still to come that it can reach
+        # (once the lock holds; until then, the next flip)
+        reach = display.next_flip_ns(refresh_ns) + lag_ns
+        coming = frame.exposure_start_ns + period_ns
+        while coming < reach:
+            coming += period_ns
+        blank = display.presented_ns
+        pipeline.lift_at_ns = (blank + (coming - lag_ns - blank) // refresh_ns * refresh_ns
+                               if lock.locked and blank else 0)
         if pipeline.emit(rec, stale):
             summary.stop_reason = "stopped from the window (e)"
             return
         pipeline.after_exposure(rec)
-        lit_ns = display.presented_ns  # (kms waited for the light's flip before the pattern's)
+        lit_ns = display.presented_ns + lag_ns  # (kms waited for the light's flip before the pattern's)
 
 
 def _run_threads(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: Any) -> None:

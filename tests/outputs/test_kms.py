@@ -205,12 +205,16 @@ class RegisteredFramebuffer(DumbFramebuffer):
         return raw[:, : self.width * 4].reshape(self.height, self.width, 4)
 
 
-def test_the_camera_locked_to_the_projector_takes_every_exposure_under_the_lifted_holes(tmp_path, monkeypatch):
+@pytest.mark.parametrize("lag_ns, every", [(0, 1), (REFRESH_NS, 2)])
+def test_the_camera_locked_to_the_projector_takes_its_exposures_under_the_lifted_holes(tmp_path, monkeypatch,
+                                                                                      lag_ns, every):
     # a free-running 60 Hz camera, its clock 50 ppm fast, its exposures 5.1 ms into a refresh at
     # first, each new frame duration applied 3 frames late, its frames 16.56 ms at the shortest;
-    # processing takes 5 ms.  Two discs cross the view.  The loop pulls
-    # the exposures to the middle of the refresh in which each lifted pattern is on, and from then
-    # on every frame is read and taken under it -- the twin's locked camera.
+    # processing takes 5 ms.  Two discs cross the view.  The loop pulls the exposures to the middle
+    # of a refresh's light and shows each lifted pattern at the flip whose light covers the next
+    # exposure it can reach: with no display lag that is every frame, taken under it -- the twin's
+    # locked camera; with a projector that lags a refresh (a DLP formatting one frame while it
+    # shows the last), the light cannot reach the next exposure, and every other frame is.
     import collections
     import csv
     import io
@@ -230,6 +234,7 @@ def test_the_camera_locked_to_the_projector_takes_every_exposure_under_the_lifte
     resources = pykms.ResourceManager(None)
     resources.reserve_connector().get_default_mode = lambda: display
     monkeypatch.setattr(kms_module, "load_pykms", lambda: pykms)
+    monkeypatch.setitem(kms_module.KmsOutput.__init__.__kwdefaults__, "clock", lambda: clock[0])
 
     class VirtualCamera(FrameSource):
         live, size, shortest_frame_ns = True, (160, 120), 16_560_000
@@ -261,25 +266,28 @@ def test_the_camera_locked_to_the_projector_takes_every_exposure_under_the_lifte
     metrics = tmp_path / "m.csv"
     config = load_config(overrides={"source": {"spec": "camera", "camera_lock": True, "camera_exposure_ms": 4.0},
                                     "output": {"outputs": ("kms",)}, "run": {"metrics": str(metrics)},
+                                    "pattern": {"display_lag_ms": lag_ns / 1e6},
                                     "track": {"latency_ms": 5.0},  # (the loop's own clock is not virtual)
                                     "light": {"levels": "fixed"}})  # (every lifted hole at dim_level)
     assert config.light.strategy == "pulse"  # auto, with the camera locked
     camera = VirtualCamera()
     summary = run(config, source=camera, log=io.StringIO(), out=io.StringIO())
-    landed = VirtualCard.cards[-1].landed  # each flip: when it landed, the least value it showed
+    # each flip's light: from its flip + the lag, and the least value it showed
+    light = [(t + lag_ns, least) for t, least in VirtualCard.cards[-1].landed]
     rows = list(csv.DictReader(metrics.open()))
     assert summary.frames == len(rows) and summary.frames + summary.dropped == 90
-    # locked within 20 frames: from then on every frame the camera made was read (none skipped,
-    # none gone while the loop was busy), each exposed whole inside a refresh of lifted holes
+    # locked within 20 frames: from then on the camera's frames are read every frame (every other
+    # with the lag; none skipped as stale, none more gone while the loop was busy), each exposed
+    # whole inside a refresh of lifted holes
     settled = camera.exposures[20:]
-    assert [m for _, _, m in settled] == list(range(settled[0][2], settled[0][2] + len(settled)))
+    assert [m for _, _, m in settled] == list(range(settled[0][2], settled[0][2] + every * len(settled), every))
     assert all(int(r["Dropped Frames"]) == 0 for r in rows[20:])
     lifted = round(config.light.dim_level * 255)
     for start, end, _ in settled:
-        before = [(t, least) for t, least in landed if t <= start]
-        after = [t for t, _ in landed if t > start]
+        before = [(t, least) for t, least in light if t <= start]
+        after = [t for t, _ in light if t > start]
         assert before[-1][1] >= lifted and end <= after[0], (start, end, before[-1])  # the holes lifted
     # ... and between exposures the holes dark: the pattern (its holes at 0) follows each light
-    assert sum(least == 0 for _, least in landed[40:]) >= len(landed[40:]) // 2 - 1
+    assert sum(least == 0 for _, least in light[40:]) >= len(light[40:]) // 2 - 1
     errors = [abs(float(r["Exposure Phase Error (s)"])) for r in rows[20:]]
     assert max(errors) < 0.05 / 120

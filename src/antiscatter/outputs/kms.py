@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import mmap
 import select
-from typing import Any
+import time
+from typing import Any, Callable
 
 import cv2
 import numpy as np
@@ -43,11 +44,15 @@ class KmsOutput(LightOutput):
 
     pykms: the module (tests pass a fake); loaded lazily when None.
     flip_timeout: seconds to wait for a flip to complete before giving up with an error.
+    clock: the ``CLOCK_MONOTONIC`` clock in ns the flip events are on (tests pass a virtual one).
     """
 
     name = "kms"
 
-    def __init__(self, *, pykms: Any = None, flip_timeout: float = 1.0) -> None:
+    def __init__(self, *, pykms: Any = None, flip_timeout: float = 1.0,
+                 clock: Callable[[], int] = time.monotonic_ns) -> None:
+        self.clock = clock
+        self.committed_ns = 0  # when the last flip was asked for
         self.kms = pykms or load_pykms()
         kms = self.kms
         try:
@@ -126,8 +131,21 @@ class KmsOutput(LightOutput):
         request.add(self.plane, "FB_ID", self.buffers[back].id)
         if request.commit(back, allow_modeset=False) != 0:
             raise RuntimeError("output 'kms': page flip refused")
+        self.committed_ns = self.clock()
         self.pending = True
         self.front = back
+
+    def next_flip_ns(self, refresh_ns: int) -> int:
+        """When a flip asked for now would land (the display refreshing every ``refresh_ns``): the
+        first vertical blank after now, or after the pending flip's; now while none has landed."""
+        now = self.clock()
+        if not self.presented_ns:
+            return now
+
+        def blank_after(t: int) -> int:
+            return self.presented_ns + refresh_ns * ((t - self.presented_ns) // refresh_ns + 1)
+
+        return blank_after(max(now, blank_after(self.committed_ns)) if self.pending else now)
 
     def close(self) -> None:
         if not self._maps:
