@@ -583,7 +583,7 @@ def test_a_free_running_camera_takes_the_first_frame_exposed_once_the_light_is_o
     start = [k * frame + refresh / 2 for k in range(6)]
     # the light handed over at 0 is on screen from the first flip, 8.3 ms: frame 0 (4.2..8.2 ms) is skipped
     assert not free.take(start[0], start[0] + 0.004) and free.take(start[1], start[1] + 0.004)
-    lands = free.processed(start[1] + 0.004)  # read at 24.8 ms: the last pattern back at 25 ms
+    lands = free.processed(start[1], start[1] + 0.004)  # read at 24.8 ms: the last pattern back at 25 ms
     assert lands == pytest.approx(4 * refresh)  # ready at 29.8 ms, shown at the flip at 33.3 ms
     assert free.light_at(3 * refresh, True) is False and free.light_at(4 * refresh, False) is False
     assert free.light_at(5 * refresh, False) is True  # the next light handed over then: on a refresh later
@@ -594,7 +594,7 @@ def test_a_free_running_camera_takes_the_first_frame_exposed_once_the_light_is_o
     assert [stuck.take(0.0, 0.004) for _ in range(4)] == [False, False, False, True]
     # the rule run had while the camera's stamp (the exposure's end) was taken for the capture time
     old = _FreeRunning(refresh, 0.005, skip_before="handed over")
-    old.processed(start[1] + 0.004)
+    old.processed(start[1], start[1] + 0.004)
     assert old.take(start[2], start[2] + 0.004)
 
 
@@ -616,7 +616,8 @@ def test_pulsed_holes_on_a_free_running_camera():
 
     real = twin._FreeRunning.__init__
     try:
-        twin._FreeRunning.__init__ = lambda self, refresh, latency: real(self, refresh, latency, "handed over")
+        twin._FreeRunning.__init__ = lambda self, refresh, latency, **kw: real(self, refresh, latency, "handed over",
+                                                                              **kw)
         flicker = run()
     finally:
         twin._FreeRunning.__init__ = real
@@ -637,3 +638,36 @@ def test_twin_command_free_running_camera(cli):
     assert {r["frames_processed"] for r in runs if r["strategy"] not in ("pulse", "flash")} == {8}
     bad = cli("twin", "--camera-phase", "1.5", "--frames", "2")
     assert bad.code == 2 and "camera_phase: got 1.5, allowed 0 <= phase < 1" in bad.err and "Traceback" not in bad.err
+    # run's locked loop on a projector lagging a refresh: every other frame for pulse and flash
+    lagged = cli("twin", "--frames", "8", "--size", "200x150", "--preset", "bubbles", "--baseline-m", "0",
+                 "--camera-lock", "--display-lag-ms", str(1000 / 120), "--json")
+    assert lagged.code == 0, lagged.err
+    out = json.loads(lagged.out)
+    assert out["camera_lock"] and out["display_lag_ms"] == pytest.approx(1000 / 120)
+    runs = [r for r in out["runs"] if r["detector"]]
+    assert {r["camera"] for r in runs} == {"locked, as run"}
+    assert {r["frames_processed"] for r in runs if r["strategy"] in ("pulse", "flash")} == {4}
+    bad = cli("twin", "--camera-lock", "--camera-phase", "0.5", "--frames", "2")
+    assert bad.code == 2 and "camera_lock: the locked camera's exposures sit in the middle" in bad.err
+    bad = cli("twin", "--display-lag-ms", "-1", "--frames", "2")
+    assert bad.code == 2 and "--display-lag-ms -1.0: allowed a number >= 0" in bad.err
+
+
+@pytest.mark.parametrize("lag, read, removed", [(0.0, 24, [0.9] * 20), (1 / 120, 12, [0.9, 1.0] * 10)])
+def test_pulsed_holes_as_run_locks_the_camera(lag, read, removed):
+    # run --camera-lock is one thread: each exposure light goes out at the flip whose light covers
+    # the next exposure it can reach.  With no display lag (5 ms) that is the next exposure: the
+    # locked ideal's figures exactly.  A projector that lags a refresh cannot light the next one in
+    # time: every other frame is read, and the lifted holes are on one refresh in four
+    def run(**kw):
+        return simulate_loop(TwinRun("contrast", "calibrated", "pulse", dim_level=0.2, margin_px=12.0),
+                             geometry=TwinGeometry(camera_size=SIZE, baseline_m=0.0, display_lag_s=lag, **kw),
+                             frames=24, latency_ms=5, scene=one_static_particle())
+
+    out = run(camera_lock=True)
+    assert out["camera"] == "locked, as run" and out["frames_processed"] == read
+    assert [f["removed"] for f in out["series"][4:]] == pytest.approx(removed, abs=1e-6)
+    if not lag:
+        assert [f["removed"] for f in run()["series"]] == [f["removed"] for f in out["series"]]
+    with pytest.raises(ValueError, match="camera_lock: the locked camera's exposures sit in the middle"):
+        TwinGeometry(camera_lock=True, camera_phase=0.5)

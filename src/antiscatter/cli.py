@@ -296,6 +296,12 @@ def build_parser() -> argparse.ArgumentParser:
                     "F (0..1) of a projector refresh after one begins; pulse and flash then run as run does on "
                     "it (the frames exposed before the light is on screen skipped, the light on until the frame "
                     "is read); default: the camera locked to the projector, each exposure at a refresh's start")
+    tw.add_argument("--camera-lock", action="store_true", help="with pulse and flash, the loop run --camera-lock "
+                    "runs once its lock holds (one thread: each exposure light at the flip whose light covers the "
+                    "next exposure it can reach) instead of the locked ideal")
+    tw.add_argument("--display-lag-ms", type=float, default=0.0, help="how long after a flip its image is light on "
+                    "the scene, ms (default 0; a DLP projector that formats a frame while it shows the last lags "
+                    "a refresh)")
     tw.add_argument("--flash-level", type=float, default=0.25, help="brightness of the detection flash in the "
                     "flash runs, 0..1 (default 0.25; with a fast projector a full 1.0 flash is short)")
     tw.add_argument("--dim-level", type=float, default=0.1, help="light left in dim and pulsed holes, 0..1 "
@@ -723,7 +729,7 @@ def _twin(args: argparse.Namespace) -> int:
         raise UsageError(f"--min-worth {args.min_worth}: allowed a number >= 0 (0 = every hole drawn)")
     if args.rest is not None and args.rest < 0:
         raise UsageError(f"--rest {args.rest}: allowed a whole number of frames >= 0")
-    for key in ("projector_aperture_mm", "projector_focus_m", "grow", "grow_from"):
+    for key in ("projector_aperture_mm", "projector_focus_m", "grow", "grow_from", "display_lag_ms"):
         value = getattr(args, key)
         if not (math.isfinite(value) and value >= 0):
             raise UsageError(f"--{key.replace('_', '-')} {value}: allowed a number >= 0")
@@ -736,7 +742,8 @@ def _twin(args: argparse.Namespace) -> int:
         geometry = TwinGeometry(camera_size=size, projector_size=projector, baseline_m=args.baseline_m,
                                 projector_hz=args.projector_hz, exposure_s=exposure,
                                 projector_aperture_m=args.projector_aperture_mm / 1e3,
-                                projector_focus_m=args.projector_focus_m, camera_phase=args.camera_phase)
+                                projector_focus_m=args.projector_focus_m, camera_phase=args.camera_phase,
+                                camera_lock=args.camera_lock, display_lag_s=args.display_lag_ms / 1e3)
     except ValueError as exc:
         raise UsageError(f"twin: {exc}") from None
     calibration = None
@@ -783,6 +790,7 @@ def _twin(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({"preset": args.preset, "frames": args.frames, "baseline_m": args.baseline_m,
                           "latency_ms": args.latency_ms, "camera_phase": args.camera_phase,
+                          "camera_lock": args.camera_lock, "display_lag_ms": args.display_lag_ms,
                           "projector_aperture_mm": args.projector_aperture_mm,
                           "projector_focus_m": args.projector_focus_m or geometry.background_m,
                           **extra, "runs": runs}, indent=2))

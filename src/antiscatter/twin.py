@@ -101,15 +101,15 @@ class _FreeRunning:
     is ready ``latency`` later and is shown at the next flip, after any pending one.
     """
 
-    def __init__(self, refresh: float, latency: float, skip_before: str = "on screen") -> None:
+    def __init__(self, refresh: float, latency: float, skip_before: str = "on screen", lag: float = 0.0) -> None:
         from .runtime import MAX_STALE_FRAMES
 
-        self.refresh, self.latency, self.most_stale = refresh, latency, MAX_STALE_FRAMES
+        self.refresh, self.latency, self.most_stale, self.lag = refresh, latency, MAX_STALE_FRAMES, lag
         self.skip_before = skip_before
         self.handed = 0.0  # when the exposure's light was handed over (run's flash_on)
         self.stale = 0
-        self.events = [(_flip_lands(0.0, refresh), True)]  # (when, the exposure's light on)
-        self.on = False
+        # (when it is light on the scene: its flip + the display's lag, the exposure's light on)
+        self.events = [(_flip_lands(0.0, refresh) + lag, True)]
 
     def light_at(self, t: float, on: bool) -> bool:
         """Whether the exposure's light is on in the refresh starting at ``t`` (``on``: it was until
@@ -124,25 +124,61 @@ class _FreeRunning:
             return False  # ended before it was asked for
         # run's rule: began once the light is on screen; "handed over": the frame stamped after it
         # was handed over (what run did while the camera's stamp was taken for the capture time)
-        fresh = (start >= self.handed + self.refresh - 1e-9 if self.skip_before == "on screen"
+        fresh = (start >= self.handed + self.refresh + self.lag - 1e-9 if self.skip_before == "on screen"
                  else end >= self.handed)
         if not fresh and self.stale < self.most_stale:
             self.stale += 1
             return False
         return True
 
-    def processed(self, end: float) -> float:
-        """The frame read at ``end`` (its exposure's end): when its pattern lands.  Schedules the
-        pattern put back after it and the next exposure's light."""
+    def processed(self, start: float, end: float) -> float:
+        """The frame exposed ``start``..``end``, read at its end: when its pattern is light on the
+        scene.  Schedules the pattern put back after it and the next exposure's light."""
         lit = _flip_lands(self.handed, self.refresh)
         pending = lit
         if end >= lit - 1e-12:  # the light's flip has landed: the last pattern back at the next one
             pending = _flip_lands(end, self.refresh)
-            self.events.append((pending, False))
+            self.events.append((pending + self.lag, False))
         lands = _flip_lands(max(end + self.latency, pending), self.refresh)
         self.handed, self.stale = lands, 0  # the next light waits for that flip
-        self.events.append((_flip_lands(lands, self.refresh), True))
-        return lands
+        self.events.append((_flip_lands(lands, self.refresh) + self.lag, True))
+        return lands + self.lag
+
+
+class _LockedRun(_FreeRunning):
+    """``run``'s locked loop (``--camera-lock``) once the lock holds: each exposure begins in the
+    middle of a refresh's light; a frame read at its exposure's end is ready ``latency`` later,
+    and its exposure light goes out at the flip whose light (``lag`` after it) covers the first
+    exposure still to come that it can reach, the new pattern in the flips before it, the
+    pattern again at the flip after; a frame that began before the light was on is skipped (at
+    most ``MAX_STALE_FRAMES``).  ``period``: the camera's frame period.
+    """
+
+    def __init__(self, refresh: float, latency: float, lag: float, period: float) -> None:
+        super().__init__(refresh, latency, lag=lag)
+        self.period = period
+        self.events = []  # the full lamp until the first pattern
+        self.lit = 0.0  # when the last exposure light is on the scene
+        self.pending = 0.0  # when the last flip asked for lands
+
+    def take(self, start: float, end: float) -> bool:
+        if end <= self.handed + 1e-12:
+            return False  # ended before it was asked for
+        if start < self.lit - 1e-9 and self.stale < self.most_stale:
+            self.stale += 1
+            return False
+        return True
+
+    def processed(self, start: float, end: float) -> float:
+        r = self.refresh
+        first = _flip_lands(max(end + self.latency, self.pending), r)  # what a flip asked for now lands at
+        coming = start + self.period
+        while coming < first + self.lag - 1e-9:
+            coming += self.period
+        lift = max(first, math.floor((coming - self.lag) / r + 1e-9) * r)  # the last flip whose light covers it
+        self.events += [(lift + self.lag, True), (lift + r + self.lag, False)]
+        self.lit, self.pending, self.handed, self.stale = lift + self.lag, lift + r, lift, 0
+        return first + self.lag  # the new pattern: in the flips before the light's, or with it
 
 
 __all__ = ["TwinGeometry", "TwinRun", "simulate_loop", "default_runs", "backscatter_weight", "STRATEGIES", "MAPPINGS"]
@@ -176,6 +212,12 @@ class TwinGeometry:
     camera, each exposure starting that share of a refresh after one begins (its clock drifts
     against the projector's by parts per million: the phase holds over a run).  With ``pulse``
     and ``flash`` the loop is then ``run``'s on such a camera (:class:`_FreeRunning`).
+    camera_lock: with ``pulse`` and ``flash``, the loop ``run --camera-lock`` runs once its lock
+    holds (:class:`_LockedRun`) instead of the locked ideal: one thread, so a frame's light must be
+    ready for the next exposure or the loop reads every other frame.
+    display_lag_s: how long after a flip its image is light on the scene (a DLP projector that
+    formats one frame while it shows the last lags a refresh); every pattern, pulse and flash is on
+    that much later.  With the locked ideal the camera is taken to be triggered by the light.
 
     projector_aperture_m: the projector lens's aperture diameter; 0 (default) is the pinhole
     projector, sharp at every depth.  Above 0 the pattern is sharp only at ``projector_focus_m``
@@ -198,9 +240,11 @@ class TwinGeometry:
     projector_aperture_m: float = 0.0
     projector_focus_m: float = 0.0
     camera_phase: float | None = None
+    camera_lock: bool = False
+    display_lag_s: float = 0.0
 
     def __post_init__(self) -> None:
-        for key in ("projector_aperture_m", "projector_focus_m"):
+        for key in ("projector_aperture_m", "projector_focus_m", "display_lag_s"):
             value = getattr(self, key)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{key}: got {value}, allowed a number >= 0")
@@ -213,6 +257,9 @@ class TwinGeometry:
         if not 0 < self.exposure_s <= 1 / self.projector_hz + 1e-12:
             raise ValueError(f"exposure_s: got {self.exposure_s}, allowed 0 < exposure <= one projector refresh "
                              f"({1 / self.projector_hz:.4f} s)")
+        if self.camera_lock and self.camera_phase is not None:
+            raise ValueError("camera_lock: the locked camera's exposures sit in the middle of a refresh's light; "
+                             "allowed without camera_phase (a free-running camera)")
         if self.camera_phase is not None and not (
                 math.isfinite(self.camera_phase) and 0 <= self.camera_phase < 1
                 and self.camera_phase / self.projector_hz + self.exposure_s <= 1 / self.camera_hz + 1e-12):
@@ -519,8 +566,15 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
     # the exposure's light: in the first refresh of each frame (camera locked to the projector),
     # or as run gives it on a free-running camera
     exposing = run.strategy in ("pulse", "flash") and detector is not None
-    offset = (geometry.camera_phase or 0.0) * sub_s  # the exposure's start after its frame's first refresh
-    free = _FreeRunning(sub_s, latency) if exposing and geometry.camera_phase is not None else None
+    lag = geometry.display_lag_s
+    # the exposure's start after its frame's first refresh: locked, the middle of a refresh's light
+    offset = ((geometry.camera_phase or 0.0) * sub_s if not geometry.camera_lock else
+              ((sub_s - geometry.exposure_s) / 2 + lag) % sub_s)
+    free = None
+    if exposing and geometry.camera_phase is not None:
+        free = _FreeRunning(sub_s, latency, lag=lag)
+    elif exposing and geometry.camera_lock:
+        free = _LockedRun(sub_s, latency, lag, frame_s)
     lifted = False
     processed = 0
     for k in range(frames):
@@ -595,8 +649,8 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
             if tracker is not None and run.strategy != "flash" and run.mapping != "identity":
                 # as run (with compensation): where tracked particles should be now
                 detector.expect(tracker.snapshot().holes(te + geometry.exposure_s / 2))
-            on_at = (free.processed(end) if free is not None else
-                     math.ceil((end + latency) / sub_s - 1e-9) * sub_s)
+            on_at = (free.processed(te, end) if free is not None else
+                     math.ceil((end + latency) / sub_s - 1e-9) * sub_s + lag)
             queue.append(_process(scene.render(light=exposure_light), te, on_at))
             queue.sort(key=lambda item: item[0])
         frame_on /= sub_per_frame
@@ -625,7 +679,9 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
             "grow": run.grow if run.detector else None,
             "grow_from": run.grow_from if run.detector and run.grow else None,
             "min_worth": run.min_worth if probe is not None else None,
-            "latency_ms": latency_ms, "camera": "locked" if geometry.camera_phase is None else "free",
+            "latency_ms": latency_ms, "display_lag_ms": geometry.display_lag_s * 1e3,
+            "camera": "free" if geometry.camera_phase is not None else "locked, as run" if geometry.camera_lock
+            else "locked",
             "camera_phase": geometry.camera_phase, "frames_processed": processed if run.detector else 0,
             "baseline_m": geometry.baseline_m, "backscatter_removed": removed,
             "scene_light_kept": on_scene / scene_samples if scene_samples else 1.0, "frames": frames,
