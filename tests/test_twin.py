@@ -321,19 +321,25 @@ def test_scoreboard_long_table(monkeypatch):
     real, seen = twin.simulate_loop, []
 
     def small(run, **kw):
-        seen.append((run.mapping, run.strategy, run.predict, kw["geometry"].baseline_m, kw["latency_ms"],
-                     kw["frames"], kw["seed"], kw["geometry"].camera_phase))
+        g = kw["geometry"]
+        seen.append((run.mapping, run.strategy, run.predict, g.baseline_m, kw["latency_ms"], kw["frames"],
+                     kw["seed"], g.camera_phase, g.camera_lock, g.display_lag_s))
         return real(run, **{**kw, "geometry": dataclasses.replace(kw["geometry"], camera_size=(160, 120))})
 
     monkeypatch.setattr(twin, "simulate_loop", small)
     rows = _long_rows(3, lambda s: None, seeds=2, workers=1)
     assert [(r["baseline_m"], r["latency_ms"]) for r in rows] == [(b, lat) for b, lat, *_ in LONG_RUNS]
-    assert [r["run"] for r in rows] == ["default, calibrated, dim, predict", "default, calibrated, pulse, predict"] * 2 + [
+    dim, pulse = "default, calibrated, dim, predict", "default, calibrated, pulse, predict"
+    assert [r["run"] for r in rows] == [dim, pulse, dim, pulse, pulse, dim, pulse] + [
         "default, probe, dim, predict", "default, probe, pulse, predict", "default, probe, pulse",
         "default, probe, pulse, predict"]
-    assert [r["camera"] for r in rows] == ["locked"] * 2 + ["free"] * 2 + ["locked"] * 4
-    # the free-running camera's scenes each at its own phase of the refresh, the locked ones at none
+    assert [r["camera"] for r in rows] == ["locked"] * 2 + ["free"] * 2 + ["as run", "locked", "as run"] + ["locked"] * 4
+    assert [r["display_lag_ms"] for r in rows] == pytest.approx([0] * 5 + [1000 / 120] * 2 + [0] * 4)
+    # the free-running camera's scenes each at its own phase of the refresh, the locked ones at none;
+    # run's locked loop and the lag where the table says
     assert [s[7] for s in seen[4:8]] == [0.0, 0.25, 0.0, 0.25] and {s[7] for s in seen[8:]} == {None}
+    assert [s[8] for s in seen[::2]] == [r["camera"] == "as run" for r in rows]
+    assert [s[9] for s in seen[::2]] == pytest.approx([r["display_lag_ms"] / 1e3 for r in rows])
     # every loop run as long as asked, over each of the scenes, and each row the mean of its own two
     assert {s[5] for s in seen} == {3} and [s[6] for s in seen] == [1, 2] * len(LONG_RUNS)
     assert seen[-1][:5] == ("probe", "pulse", True, 0.12, 20.0)

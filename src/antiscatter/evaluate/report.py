@@ -232,10 +232,14 @@ def scoreboard(*, scenarios: dict[str, Any], catalogue_version: int, detectors: 
                    "start of a refresh (the trigger on the projector's vsync, or `run --camera-lock`); \"free\": "
                    "a free-running camera, scene k's exposures starting "
                    + ", ".join(f"{p:g}" for p in FREE_PHASES) + " of a refresh in (k = 1, 2, ...), pulse run as "
-                   "`run` runs it there (`twin --camera-phase`).", ""]
+                   "`run` runs it there (`twin --camera-phase`); \"as run\": locked, the loop `run --camera-lock` "
+                   "runs (one thread; `twin --camera-lock`). Display lag: from a flip to its light on the scene "
+                   "(`--display-lag-ms`; a DLP projector formatting one frame while it shows the last lags a "
+                   "refresh).", ""]
             rows = _long_rows(twin_long_frames, log, seeds=twin_long_seeds)
             md += _table(rows, [("baseline_m", "baseline (m)", "{:g}"), ("latency_ms", "latency (ms)", "{:g}"),
-                                ("run", "system", ""), ("camera", "camera", ""), *_TWIN_FIGURES])
+                                ("run", "system", ""), ("camera", "camera", ""),
+                                ("display_lag_ms", "display lag (ms)", "{:.3g}"), *_TWIN_FIGURES])
             data["twin_long"] = rows
     return "\n".join(md) + "\n", data
 
@@ -291,15 +295,20 @@ def _loop_rows(jobs: list[tuple], seeds: int, log: Callable[[str], None],
     return rows
 
 
-#: the long-run table's loops: (baseline m, latency ms, run's mapping, strategy, predict, camera)
-#: -- the co-located goal's strategies, on a camera locked to the projector and on a free-running
-#: one (``free``: scene k's exposures FREE_PHASES[k % 4] of a refresh in), the 12 cm goal's, and
-#: the prediction's gain at 20 ms
-LONG_RUNS = ((0.0, 5.0, "calibrated", "dim", True, "locked"), (0.0, 5.0, "calibrated", "pulse", True, "locked"),
-             (0.0, 5.0, "calibrated", "dim", True, "free"), (0.0, 5.0, "calibrated", "pulse", True, "free"),
-             (0.12, 5.0, "probe", "dim", True, "locked"), (0.12, 5.0, "probe", "pulse", True, "locked"),
-             (0.12, 20.0, "probe", "pulse", False, "locked"), (0.12, 20.0, "probe", "pulse", True, "locked"))
+#: the long-run table's loops: (baseline m, latency ms, run's mapping, strategy, predict, camera,
+#: display lag in refreshes) -- the co-located goal's strategies on a camera locked to the
+#: projector (the ideal), on a free-running one (``free``: scene k's exposures FREE_PHASES[k % 4]
+#: of a refresh in) and locked as ``run --camera-lock`` runs it (``as run``), without and with a
+#: projector lagging a refresh; the 12 cm goal's, and the prediction's gain at 20 ms
+LONG_RUNS = ((0.0, 5.0, "calibrated", "dim", True, "locked", 0), (0.0, 5.0, "calibrated", "pulse", True, "locked", 0),
+             (0.0, 5.0, "calibrated", "dim", True, "free", 0), (0.0, 5.0, "calibrated", "pulse", True, "free", 0),
+             (0.0, 5.0, "calibrated", "pulse", True, "as run", 0),
+             (0.0, 5.0, "calibrated", "dim", True, "locked", 1), (0.0, 5.0, "calibrated", "pulse", True, "as run", 1),
+             (0.12, 5.0, "probe", "dim", True, "locked", 0), (0.12, 5.0, "probe", "pulse", True, "locked", 0),
+             (0.12, 20.0, "probe", "pulse", False, "locked", 0), (0.12, 20.0, "probe", "pulse", True, "locked", 0))
 FREE_PHASES = (0.0, 0.25, 0.5, 0.75)
+#: the projector's refresh the display lag is counted in (s)
+_REFRESH_S = 1 / 120
 
 
 def _long_rows(frames: int, log: Callable[[str], None], *, seeds: int = 6,
@@ -309,11 +318,13 @@ def _long_rows(frames: int, log: Callable[[str], None], *, seeds: int = 6,
     from ..twin import TwinRun
 
     jobs = [(TwinRun("contrast", mapping, strategy, predict), baseline, latency, seed, frames, 0.0, 0.0,
-             FREE_PHASES[(seed - 1) % len(FREE_PHASES)] if camera == "free" else None)
-            for baseline, latency, mapping, strategy, predict, camera in LONG_RUNS for seed in range(1, seeds + 1)]
+             {"camera_phase": FREE_PHASES[(seed - 1) % len(FREE_PHASES)] if camera == "free" else None,
+              "camera_lock": camera == "as run", "display_lag_s": lag * _REFRESH_S})
+            for baseline, latency, mapping, strategy, predict, camera, lag in LONG_RUNS
+            for seed in range(1, seeds + 1)]
     rows = _loop_rows(jobs, seeds, log, workers)
     for row, entry in zip(rows, LONG_RUNS):
-        row["camera"] = entry[5]
+        row["camera"], row["display_lag_ms"] = entry[5], entry[6] * _REFRESH_S * 1e3
     return rows
 
 
@@ -387,9 +398,9 @@ def _twin_job(job: tuple) -> dict[str, Any]:
     """One closed loop of a twin table (a process of its own), without its per-frame series."""
     from ..twin import TwinGeometry, simulate_loop
 
-    run, baseline, latency, seed, frames, aperture, focus, *phase = job  # (phase: a free-running camera's)
+    run, baseline, latency, seed, frames, aperture, focus, *timing = job  # (timing: the camera's, the display's)
     out = simulate_loop(run, geometry=TwinGeometry(baseline_m=baseline, projector_aperture_m=aperture,
-                                                   projector_focus_m=focus, camera_phase=(phase or [None])[0]),
+                                                   projector_focus_m=focus, **(timing[0] if timing else {})),
                         frames=frames, latency_ms=latency, seed=seed)
     out.pop("series")
     return out
