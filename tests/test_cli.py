@@ -802,3 +802,13 @@ def test_the_vehicles_default_configuration_runs_on_a_live_source(tmp_path):
             # time: where the pattern's are, moved on by the particles' motion since
             held = pulse < 255
             assert 0.7 < held.sum() / (last == 0).sum() < 1.3 and (last[held] == 0).mean() > 0.6
+
+
+def test_display_lag_command_needs_the_camera_and_the_projector(cli):
+    bad = cli("display-lag", "--trials", "0")
+    assert bad.code == 2 and "--trials 0: allowed >= 1" in bad.err and "Traceback" not in bad.err
+    try:
+        import picamera2  # noqa: F401
+    except ImportError:  # off the Pi: one line saying what it needs
+        off = cli("display-lag")
+        assert off.code == 2 and "source 'camera' needs the picamera2 package" in off.err and "Traceback" not in off.err

@@ -351,6 +351,19 @@ def build_parser() -> argparse.ArgumentParser:
                     "(default framebuffer)")
     ca.add_argument("--step", type=int, default=8, help="decode every Nth camera pixel (default 8)")
 
+    dl = commands.add_parser(
+        "display-lag", help="the projector's lag from a flip to its light on the scene, measured with the camera",
+        description="Show black, then white, on the projector (output kms, whose flips are timed) while the "
+                    "camera looks at what it lights, and time the white's onset inside the camera's exposures "
+                    "against the flip: the value for [pattern] display_lag_ms, which pulse, flash and "
+                    "--camera-lock count.")
+    dl.add_argument("--size", default="728x544", metavar="WxH", help="camera frame size (default 728x544)")
+    dl.add_argument("--camera-fps", type=float, default=60.0, help="camera frame rate (default 60)")
+    dl.add_argument("--camera-exposure-ms", type=float, default=15.0, help="fixed camera exposure, ms (default 15: "
+                    "near the frame period, so the onset falls inside an exposure)")
+    dl.add_argument("--refresh-hz", type=float, default=120.0, help="the projector's refresh rate (default 120)")
+    dl.add_argument("--trials", type=int, default=12, help="black-to-white trials (default 12)")
+
     be = commands.add_parser(
         "bench", help="per-stage latency of every detector, side by side (the report's table 1)",
         description="Time every detector's stages on the same simulator frames, interleaved, at 800x600 "
@@ -923,6 +936,29 @@ def _read_mapping(path: str) -> list[list[float]]:
     return matrix.tolist()
 
 
+def _display_lag(args: argparse.Namespace) -> int:
+    """``display-lag``: the camera times the projector's light against its flips."""
+    from .lock import display_lag
+    from .outputs.kms import KmsOutput
+    from .sources import open_source
+
+    if args.trials < 1:
+        raise UsageError(f"--trials {args.trials}: allowed >= 1")
+    if not (math.isfinite(args.refresh_hz) and args.refresh_hz > 0):
+        raise UsageError(f"--refresh-hz {args.refresh_hz}: allowed a number > 0")
+    size = _size_arg(args.size, "--size")
+    with open_source("camera", size=size, fps=args.camera_fps, exposure_ms=args.camera_exposure_ms) as source:
+        display = KmsOutput()
+        try:
+            result = display_lag(source, display, refresh_ns=int(round(1e9 / args.refresh_hz)), trials=args.trials)
+        finally:
+            display.close()
+    low, high = result["spread_ms"]
+    print(f"display lag: {result['lag_ms']:.2f} ms (median of {len(result['trials_ms'])} trials, {low:.2f} to "
+          f"{high:.2f} ms); put display_lag_ms = {result['lag_ms']:.2f} under [pattern]")
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the console script; returns the exit code."""
     parser = build_parser()
@@ -951,6 +987,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _twin(args)
         if args.command == "calibrate":
             return _calibrate(args)
+        if args.command == "display-lag":
+            return _display_lag(args)
     except UsageError as exc:
         print(f"antiscatter {args.command}: error: {exc}", file=sys.stderr)
         return 2

@@ -20,8 +20,11 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
+from typing import Any
 
-__all__ = ["PhaseLock", "GAIN", "DELAY", "LOCKED_WITHIN"]
+from .errors import UsageError
+
+__all__ = ["PhaseLock", "display_lag", "GAIN", "DELAY", "LOCKED_WITHIN"]
 
 #: the frames a new duration may take to apply: the corrections asked for that long ago or less
 #: are taken as still to come (a Smith predictor), so the loop does not ask for them again
@@ -93,3 +96,64 @@ class PhaseLock:
     def locked(self) -> bool:
         """Whether the last exposure began within ``LOCKED_WITHIN`` of a refresh of the target."""
         return self.error_ns is not None and abs(self.error_ns) <= LOCKED_WITHIN * self.refresh_ns
+
+
+def display_lag(source: Any, display: Any, *, refresh_ns: int, trials: int = 12, settle: int = 3) -> dict:
+    """The projector's lag from a flip to its light on the scene, measured with the camera looking
+    at what the projector lights (a fixed exposure, best near the frame period: then almost every
+    onset falls inside one; ``display``: output ``kms``).
+
+    Each trial shows black for ``settle`` frames, then white at a known flip (every other trial a
+    refresh later, so the onset meets the camera's frames at two phases), and reads frames until
+    ``settle`` more are lit.  The frame whose exposure the light came on in is lit by the
+    share of it after the onset: onset = its exposure's end - that share of its exposure.  The lag
+    is the onset less the flip's time; a trial whose onset fell between two exposures tells
+    nothing and is left out.  Returns the median over the trials that told (ms), their spread
+    and values.  A view the white does not brighten, or no onset inside an exposure, is an error.
+    """
+    import numpy as np
+
+    width, height = display.size
+    black, white = np.zeros((height, width), np.uint8), np.full((height, width), 255, np.uint8)
+
+    def frames(n: int) -> list:
+        out = []
+        for _ in range(n):
+            frame = source.read()
+            if frame is None:
+                raise UsageError("display lag: the camera stopped delivering frames")
+            out.append(frame)
+        return out
+
+    def level(frame: Any) -> float:
+        return float(np.mean(frame.image))
+
+    lags: list[float] = []
+    for trial in range(trials):
+        display.show(black)
+        dark = level(frames(settle)[-1])
+        if trial % 2:  # every other trial a refresh later against the camera's frames (its phase holds)
+            display.show(black)
+        flip = display.next_flip_ns(refresh_ns)  # where the white lands (the black's flip has landed)
+        display.show(white)
+        seen = frames(settle + 1)
+        bright = level(seen[-1])
+        if bright - dark < 8:
+            raise UsageError(f"display lag: the projector's white brightened the camera's view by {bright - dark:.1f} "
+                             "grey levels (allowed >= 8): point the camera at what the projector lights, with a "
+                             "fixed exposure")
+        if not seen[-1].exposure_ns:
+            raise UsageError("display lag: needs the camera's exposure times (source camera with a fixed "
+                             "--camera-exposure-ms)")
+        for frame in seen:
+            share = (level(frame) - dark) / (bright - dark)
+            if share > 0.05:
+                if share < 0.95:  # the onset inside this exposure
+                    end = frame.exposure_start_ns + frame.exposure_ns
+                    lags.append((end - share * frame.exposure_ns - flip) / 1e6)
+                break
+    if not lags:
+        raise UsageError(f"display lag: in {trials} trials no onset fell inside an exposure; use an exposure near "
+                         "the frame period (--camera-exposure-ms)")
+    lags.sort()
+    return {"lag_ms": lags[len(lags) // 2], "spread_ms": (lags[0], lags[-1]), "trials_ms": lags}

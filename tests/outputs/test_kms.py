@@ -294,3 +294,39 @@ def test_the_camera_locked_to_the_projector_takes_its_exposures_under_the_lifted
     assert sum(least == 0 for _, least in light[40:]) >= len(light[40:]) // 2 - 1
     errors = [abs(float(r["Exposure Phase Error (s)"])) for r in rows[20:]]
     assert max(errors) < 0.05 / 120
+
+
+@pytest.mark.parametrize("lag_ms", [0.0, 3.0, 1000 / 120])
+def test_the_display_lag_measured_by_the_camera(lag_ms):
+    # a 60 Hz camera, 15 ms exposures at an odd phase, looking at what a 120 Hz projector lights
+    # lag_ms after each flip; the light it gathers is the share of its exposure lit, plus noise
+    from antiscatter.lock import display_lag
+    from antiscatter.sources.base import Frame
+
+    clock = VirtualCard.clock = [1_000_000_000]
+    pykms = fake_pykms()
+    pykms.Card, pykms.DumbFramebuffer = VirtualCard, RegisteredFramebuffer
+    out = KmsOutput(pykms=pykms, clock=lambda: clock[0])
+    card = VirtualCard.cards[-1]
+    lag, exposure, rng = round(lag_ms * 1e6), 15_000_000, np.random.default_rng(0)
+
+    def light(t):  # the value on the scene at t: the last flip that is light by then
+        return max([(when, v) for when, v in card.landed if when + lag <= t] or [(0, 0)])[1]
+
+    class Camera:
+        def __init__(self):
+            self.start, self.count = clock[0] + 3_700_000, 0
+
+        def read(self):
+            while self.start + exposure <= clock[0]:  # ended before it was asked for: gone
+                self.start += 16_666_667
+            start, self.start = self.start, self.start + 16_666_667
+            clock[0] = start + exposure
+            lit = np.mean([light(start + exposure * (i + 0.5) / 300) for i in range(300)]) / 255
+            image = np.clip(20 + 200 * lit + rng.normal(0, 1.5, (24, 32)), 0, 255).astype(np.uint8)
+            self.count += 1
+            return Frame(image, self.count, start + exposure // 2, exposure)
+
+    result = display_lag(Camera(), out, refresh_ns=REFRESH_NS, trials=9)
+    assert result["lag_ms"] == pytest.approx(lag_ms, abs=0.15)
+    assert result["spread_ms"][1] - result["spread_ms"][0] < 0.3 and len(result["trials_ms"]) >= 4

@@ -138,6 +138,8 @@ class KmsOutput(LightOutput):
     def next_flip_ns(self, refresh_ns: int) -> int:
         """When a flip asked for now would land (the display refreshing every ``refresh_ns``): the
         first vertical blank after now, or after the pending flip's; now while none has landed."""
+        if self.pending:
+            self._wait_flip(timeout=0.0)  # a flip that has landed says when the blanks are
         now = self.clock()
         if not self.presented_ns:
             return now
