@@ -939,7 +939,7 @@ def _read_mapping(path: str) -> list[list[float]]:
 def _display_lag(args: argparse.Namespace) -> int:
     """``display-lag``: the camera times the projector's light against its flips."""
     from .lock import display_lag
-    from .outputs.kms import KmsOutput
+    from .outputs import open_output
     from .sources import open_source
 
     if args.trials < 1:
@@ -947,12 +947,9 @@ def _display_lag(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.refresh_hz) and args.refresh_hz > 0):
         raise UsageError(f"--refresh-hz {args.refresh_hz}: allowed a number > 0")
     size = _size_arg(args.size, "--size")
-    with open_source("camera", size=size, fps=args.camera_fps, exposure_ms=args.camera_exposure_ms) as source:
-        display = KmsOutput()
-        try:
-            result = display_lag(source, display, refresh_ns=int(round(1e9 / args.refresh_hz)), trials=args.trials)
-        finally:
-            display.close()
+    with open_source("camera", size=size, fps=args.camera_fps, exposure_ms=args.camera_exposure_ms) as source, \
+            open_output("kms") as display:
+        result = display_lag(source, display, refresh_ns=int(round(1e9 / args.refresh_hz)), trials=args.trials)
     low, high = result["spread_ms"]
     print(f"display lag: {result['lag_ms']:.2f} ms (median of {len(result['trials_ms'])} trials, {low:.2f} to "
           f"{high:.2f} ms); put display_lag_ms = {result['lag_ms']:.2f} under [pattern]")

@@ -22,6 +22,8 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from .errors import UsageError
 
 __all__ = ["PhaseLock", "display_lag", "GAIN", "DELAY", "LOCKED_WITHIN"]
@@ -73,7 +75,7 @@ class PhaseLock:
         if not (math.isfinite(self.gain) and 0 < self.gain <= 1):
             raise ValueError(f"gain: got {self.gain}, allowed 0 < gain <= 1")
         self.step_ns = self.step_ns or self.refresh_ns // 4
-        self._coming = deque([0] * self.delay, maxlen=self.delay) if self.delay else deque(maxlen=0)
+        self._coming = deque([0] * self.delay, maxlen=self.delay)
 
     def update(self, exposure_start_ns: int, vblank_ns: int) -> int:
         """The next frame's duration (ns) after an exposure that began at ``exposure_start_ns``,
@@ -111,8 +113,6 @@ def display_lag(source: Any, display: Any, *, refresh_ns: int, trials: int = 12,
     nothing and is left out.  Returns the median over the trials that told (ms), their spread
     and values.  A view the white does not brighten, or no onset inside an exposure, is an error.
     """
-    import numpy as np
-
     width, height = display.size
     black, white = np.zeros((height, width), np.uint8), np.full((height, width), 255, np.uint8)
 

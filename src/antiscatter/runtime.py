@@ -375,6 +375,10 @@ class _Pipeline:
                                 and self.pulse_level is not None else None)
         self.refresh_s = 1.0 / config.pattern.refresh_hz
         self.display_lag_s = config.pattern.display_lag_ms / 1e3  # from a flip to its light on the scene
+        self.refresh_ns = int(round(self.refresh_s * 1e9))
+        self.display_lag_ns = int(round(self.display_lag_s * 1e9))
+        # the output whose flips are timed (kms): the locked loop schedules its flips by it
+        self.display = next((o for o in outputs if o.name == "kms"), None)
         self.lift_at_ns = 0  # locked: the flip the next exposure's light is to land at (run_locked)
         self.compensate = bool(light.compensate) and light.strategy != "flash" and config.run.mode == "single"
         # the detector's learning for the next frames (stages marked ``after``) runs once the
@@ -600,9 +604,7 @@ class _Pipeline:
             light = self.flash_image if self.flash_image is not None else exposed
             if not self.light_on:
                 light = shown
-            refresh_ns = int(round(self.refresh_s * 1e9))
-            display = next(o for o in self.outputs if o.name == "kms")
-            while display.next_flip_ns(refresh_ns) < self.lift_at_ns - refresh_ns // 2:  # flips to spare first:
+            while self.display.next_flip_ns(self.refresh_ns) < self.lift_at_ns - self.refresh_ns // 2:  # spare flips:
                 for output in self.outputs:  # the new pattern in them
                     output.show(shown, rec.frame, rec.detections)
             for output in self.outputs:
@@ -871,8 +873,7 @@ def _run_single(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: 
     pacer = Pacer(rc.fps)
     flashing = pipeline.exposing
     live = getattr(source, "live", False)
-    refresh_ns = int(round(pipeline.refresh_s * 1e9))
-    lag_ns = int(round(pipeline.display_lag_s * 1e9))  # from a flip to its light on the scene
+    refresh_ns, lag_ns = pipeline.refresh_ns, pipeline.display_lag_ns  # (lag: from a flip to its light)
     while True:
         if _finished(summary, stop, rc):
             return
@@ -911,13 +912,12 @@ def _run_locked(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: 
 
     summary = pipeline.summary
     config = pipeline.config
-    display = next((o for o in pipeline.outputs if o.name == "kms"), None)
+    display = pipeline.display
     if display is None:
         raise UsageError("source.camera_lock: needs output kms (its flips say when the projector's refreshes are)")
-    refresh_ns = int(round(1e9 / config.pattern.refresh_hz))
+    refresh_ns, lag_ns = pipeline.refresh_ns, pipeline.display_lag_ns
     period_ns = int(round(1e9 / config.source.camera_fps))
     exposure_ns = int(round(config.source.camera_exposure_ms * 1e6))
-    lag_ns = int(round(pipeline.display_lag_s * 1e9))
     lock = PhaseLock(refresh_ns, period_ns, ((refresh_ns - exposure_ns) // 2 + lag_ns) % refresh_ns,
                      shortest_ns=getattr(source, "shortest_frame_ns", 0))
     lit_ns = 0  # when the last exposure light went on (its flip + the lag); the full lamp until the first

@@ -307,24 +307,23 @@ LONG_RUNS = ((0.0, 5.0, "calibrated", "dim", True, "locked", 0), (0.0, 5.0, "cal
              (0.12, 5.0, "probe", "dim", True, "locked", 0), (0.12, 5.0, "probe", "pulse", True, "locked", 0),
              (0.12, 20.0, "probe", "pulse", False, "locked", 0), (0.12, 20.0, "probe", "pulse", True, "locked", 0))
 FREE_PHASES = (0.0, 0.25, 0.5, 0.75)
-#: the projector's refresh the display lag is counted in (s)
-_REFRESH_S = 1 / 120
 
 
 def _long_rows(frames: int, log: Callable[[str], None], *, seeds: int = 6,
                workers: int | None = None) -> list[dict[str, Any]]:
     """The long-run table's rows: each of ``LONG_RUNS`` over ``frames`` frames, the mean over
     ``seeds`` scenes."""
-    from ..twin import TwinRun
+    from ..twin import TwinGeometry, TwinRun
 
+    refresh = 1 / TwinGeometry.projector_hz  # the twin's projector refresh, the lag's unit (s)
     jobs = [(TwinRun("contrast", mapping, strategy, predict), baseline, latency, seed, frames, 0.0, 0.0,
              {"camera_phase": FREE_PHASES[(seed - 1) % len(FREE_PHASES)] if camera == "free" else None,
-              "camera_lock": camera == "as run", "display_lag_s": lag * _REFRESH_S})
+              "camera_lock": camera == "as run", "display_lag_s": lag * refresh})
             for baseline, latency, mapping, strategy, predict, camera, lag in LONG_RUNS
             for seed in range(1, seeds + 1)]
     rows = _loop_rows(jobs, seeds, log, workers)
     for row, entry in zip(rows, LONG_RUNS):
-        row["camera"], row["display_lag_ms"] = entry[5], entry[6] * _REFRESH_S * 1e3
+        row["camera"], row["display_lag_ms"] = entry[5], entry[6] * refresh * 1e3
     return rows
 
 
