@@ -55,3 +55,21 @@ def test_bad_lock_settings_are_refused():
         PhaseLock(REFRESH, PERIOD, REFRESH)
     with pytest.raises(ValueError, match="gain: got 0, allowed 0 < gain <= 1"):
         PhaseLock(REFRESH, PERIOD, TARGET, gain=0)
+
+
+@pytest.mark.parametrize("lag, ready, ahead", [
+    (0, 11_170_000, False),  # no lag: the frame's own light reaches the next exposure after processing
+    (REFRESH, 11_170_000, True),  # a refresh's lag: only the flip right after the read covers it
+    (REFRESH, 7_000_000, False),  # ... unless the frame is ready before that flip
+    (12_000_000, 11_170_000, False),  # 12 ms: not even that flip does (the next exposure is out of reach)
+])
+def test_the_light_goes_out_ahead_only_when_the_next_exposure_needs_it_before_the_frame_is_ready(lag, ready,
+                                                                                               ahead):
+    from antiscatter.runtime import light_ahead
+
+    # a 4 ms exposure in the middle of a refresh's light (2.17 ms after the flip at 0 with no lag
+    # or one refresh's, 5.83 ms with 12 ms), read as it ends; flips every refresh; the next
+    # exposure a frame period on
+    start = (TARGET + lag) % REFRESH
+    next_flip = ((start + 4_000_000) // REFRESH + 1) * REFRESH
+    assert light_ahead(next_flip, ready, start + PERIOD - lag, REFRESH) is ahead

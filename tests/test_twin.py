@@ -644,12 +644,13 @@ def test_twin_command_free_running_camera(cli):
     assert {r["frames_processed"] for r in runs if r["strategy"] not in ("pulse", "flash")} == {8}
     bad = cli("twin", "--camera-phase", "1.5", "--frames", "2")
     assert bad.code == 2 and "camera_phase: got 1.5, allowed 0 <= phase < 1" in bad.err and "Traceback" not in bad.err
-    # run's locked loop on a projector lagging a refresh: every other frame for pulse and flash
+    # run's locked loop on a projector lagging more than a refresh: every other frame for pulse and
+    # flash (a refresh: every frame, the light a frame ahead)
     lagged = cli("twin", "--frames", "8", "--size", "200x150", "--preset", "bubbles", "--baseline-m", "0",
-                 "--camera-lock", "--display-lag-ms", str(1000 / 120), "--json")
+                 "--camera-lock", "--display-lag-ms", "12", "--json")
     assert lagged.code == 0, lagged.err
     out = json.loads(lagged.out)
-    assert out["camera_lock"] and out["display_lag_ms"] == pytest.approx(1000 / 120)
+    assert out["camera_lock"] and out["display_lag_ms"] == pytest.approx(12)
     runs = [r for r in out["runs"] if r["detector"]]
     assert {r["camera"] for r in runs} == {"locked, as run"}
     assert {r["frames_processed"] for r in runs if r["strategy"] in ("pulse", "flash")} == {4}
@@ -659,12 +660,15 @@ def test_twin_command_free_running_camera(cli):
     assert bad.code == 2 and "--display-lag-ms -1.0: allowed a number >= 0" in bad.err
 
 
-@pytest.mark.parametrize("lag, read, removed", [(0.0, 24, [0.9] * 20), (1 / 120, 12, [0.9, 1.0] * 10)])
+@pytest.mark.parametrize("lag, read, removed", [(0.0, 24, [0.9] * 20), (1 / 120, 24, [0.9] * 20),
+                                                (0.012, 12, [0.9, 1.0] * 10)])
 def test_pulsed_holes_as_run_locks_the_camera(lag, read, removed):
     # run --camera-lock is one thread: each exposure light goes out at the flip whose light covers
     # the next exposure it can reach.  With no display lag (5 ms) that is the next exposure: the
-    # locked ideal's figures exactly.  A projector that lags a refresh cannot light the next one in
-    # time: every other frame is read, and the lifted holes are on one refresh in four
+    # locked ideal's figures exactly.  A projector that lags a refresh needs that light before the
+    # frame can be processed: the last frame's goes out then, every frame is read.  One that lags
+    # 12 ms cannot light the next exposure at all: every other frame is read, and the lifted holes
+    # are on one refresh in four
     def run(**kw):
         return simulate_loop(TwinRun("contrast", "calibrated", "pulse", dim_level=0.2, margin_px=12.0),
                              geometry=TwinGeometry(camera_size=SIZE, baseline_m=0.0, display_lag_s=lag, **kw),

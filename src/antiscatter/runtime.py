@@ -8,6 +8,7 @@ report's columns, the detections CSV, and prints the report's table 1 summary.
 from __future__ import annotations
 
 import array
+import collections
 import csv
 import math
 import os
@@ -298,6 +299,16 @@ class _Record:
     learned: threading.Event | None = None  # the detector's deferred stages are done (None: none pending)
 
 
+@dataclass(frozen=True)
+class _Exposed:
+    """A frame's exposure light and what the next frame's processing needs to know of it."""
+
+    light: np.ndarray | None  # the light (projector pixels); None: the lamp was off
+    unlit_ids: Any = None  # the tracks whose holes it holds (none under a flash)
+    rested_ids: Any = None  # of them, those fully dark (HoleLevels.rest)
+    probes: Mapping = field(default_factory=dict)  # depth probing: each track's interval in it
+
+
 #: frames per second of a folder of images, which has no clock of its own, when the run is not
 #: paced (``--fps``): the camera's default rate
 FOLDER_FPS = 60.0
@@ -380,6 +391,14 @@ class _Pipeline:
         # the output whose flips are timed (kms): the locked loop schedules its flips by it
         self.display = next((o for o in outputs if o.name == "kms"), None)
         self.lift_at_ns = 0  # locked: the flip the next exposure's light is to land at (run_locked)
+        self.lit_frame = 0  # locked: the index of the frame it is for
+        # locked, a display lagging about a refresh: the last frame's light went out before this
+        # frame was processed (runtime.light_ahead); its pattern is then light from pattern_on_ns
+        self.ahead = False
+        self.pattern_on_ns: int | None = None
+        self._made: _Exposed | None = None  # the light the last frame made, for the exposure it reaches
+        self._flashed: _Exposed | None = None  # the light that went out ahead, for the next exposure
+        self._ahead_buffers: list[np.ndarray] = []  # (two: the next one goes out before it is judged)
         self.compensate = bool(light.compensate) and light.strategy != "flash" and config.run.mode == "single"
         # the detector's learning for the next frames (stages marked ``after``) runs once the
         # pattern is out: in single mode by emit, with threads by the process thread meanwhile
@@ -436,6 +455,8 @@ class _Pipeline:
             self.last_capture = captured
             if tc.predict:
                 latency = tc.latency_ms / 1e3 if tc.latency_ms >= 0 else self.latency_estimate
+                if self.pattern_on_ns is not None:  # the locked loop knows when (the light ahead)
+                    latency = self.pattern_on_ns / 1e9 - captured - self.display_lag_s
                 # the pattern stays on until the next one, a frame period later: each hole where its
                 # particle is halfway through that time (PREDICT_AHEAD), not where it is when it goes on
                 holes = prediction.holes(captured + latency + self.display_lag_s
@@ -582,6 +603,27 @@ class _Pipeline:
             output.flash(image)
         return time.monotonic_ns()
 
+    def flash_ahead(self, before: int) -> None:
+        """Locked, the light ahead: the exposure light the last frame made goes out on every output
+        now (at the next flip), before frame ``before`` - 1 is processed; that frame's :meth:`emit`
+        then shows its pattern, and the exposure after it is judged by this light."""
+        made = self._made if self._made is not None else _Exposed(self.full_image)
+        image = made.light
+        if image is not None:  # (its buffers are redrawn before it is judged)
+            if len(self._ahead_buffers) < 2:
+                self._ahead_buffers.append(np.empty_like(image))
+            self._ahead_buffers.reverse()
+            image = self._ahead_buffers[0]
+            np.copyto(image, made.light)
+            made = _Exposed(image, made.unlit_ids, made.rested_ids, made.probes)
+        self._flashed = made
+        if self.flash_image is not None:
+            image = self.flash_image
+        if image is None or not self.light_on:
+            image = np.zeros_like(self.full_image)
+        for output in self.outputs:
+            output.flash(image, before)
+
     def restore(self) -> None:
         """The exposure is over: the last pattern back on every output while the frame is processed."""
         image = self.last_pattern if self.last_pattern is not None else self.full_image
@@ -599,8 +641,8 @@ class _Pipeline:
             if self._dark is None or self._dark.shape != shown.shape:
                 self._dark = np.zeros_like(shown)
             shown = self._dark
-        if self.locked:  # the next exposure's light at its flip; the pattern once it has been on (after_exposure)
-            exposed = self._expose(rec, shown)
+        if self.locked and not self.ahead:  # the next exposure's light at its flip; the pattern once it
+            exposed = self._expose(rec, shown)  # has been on (after_exposure)
             light = self.flash_image if self.flash_image is not None else exposed
             if not self.light_on:
                 light = shown
@@ -608,8 +650,8 @@ class _Pipeline:
                 for output in self.outputs:  # the new pattern in them
                     output.show(shown, rec.frame, rec.detections)
             for output in self.outputs:
-                output.flash(light)
-        else:
+                output.flash(light, self.lit_frame)
+        else:  # (ahead: the light went out before the frame was processed)
             for output in self.outputs:
                 output.show(shown, rec.frame, rec.detections)
         t_out = clock()
@@ -619,18 +661,23 @@ class _Pipeline:
                 self.learn(rec)
             else:  # the process thread is doing it (it always marks it done)
                 rec.learned.wait()
-        if self.probe is not None:
-            self.shown_probes = rec.probes if self.light_on else {}
-        # single mode: the next exposure is taken under this pattern (not under a flash)
-        self.unlit_ids = rec.hole_ids if self.light_on and self.flash_image is None else None
-        self.rested_ids = rec.rested_ids if self.unlit_ids is not None else None
-        if not self.locked:
+        if not self.locked or self.ahead:
             exposed = self._expose(rec, shown)
+        # the next exposure is taken under this pattern, or its light (its holes, none under a flash)
+        unlit = rec.hole_ids if self.light_on and self.flash_image is None else None
+        made = self._made = _Exposed(exposed if self.light_on else None, unlit,
+                                     rec.rested_ids if unlit is not None else None,
+                                     rec.probes if self.light_on else {})
+        if self.ahead:  # ... unless the last frame's went out ahead of this one: the next exposure is under it
+            made = self._flashed
+        self.unlit_ids, self.rested_ids = made.unlit_ids, made.rested_ids
         if self.probe is not None:  # mode single: the buffer stays intact until the next frame is processed
-            self.shown_exposure = exposed if self.light_on else None
+            self.shown_probes = made.probes
+            self.shown_exposure = made.light
         if self.compensate:  # what the next exposure will be lit by: this pattern on the scene
-            self.detector.set_light(camera_light(exposed, self.camera_from_projector, self.camera_size,
-                                                 out=self.light_buffer) if self.light_on else None)
+            self.detector.set_light(None if made.light is None else
+                                    camera_light(made.light, self.camera_from_projector, self.camera_size,
+                                                 out=self.light_buffer))
         self._record(rec.frame.image)
         latency_ns = shown_ns - rec.frame.timestamp_ns
         summary = self.summary
@@ -856,6 +903,20 @@ def _finished(summary: RunSummary, stop: "StopFlag", rc: Any) -> bool:
 
 #: frames a live source may deliver from before the flash went on (exposed under the last pattern)
 MAX_STALE_FRAMES = 3
+#: locked: a flip asked for later than this before a vertical blank is taken as missing it
+FLIP_MARGIN_NS = 1_000_000
+
+
+def light_ahead(next_flip: float, ready: float, light_by: float, refresh: float) -> bool:
+    """Locked loop: whether the last frame's exposure light goes out at the next flip, before the
+    frame just read is processed (and that frame's light a frame later).  So when the next flip is
+    the last whose light covers the next exposure (it is on the scene by ``light_by``: the
+    exposure's start less the display lag) and the frame cannot be ready (``ready``, margin
+    included) before it.  Otherwise the frame's own light goes out after it is processed, at the
+    flip that covers the first exposure it can still reach -- with a projector lagging a refresh,
+    every other exposure.  Any one unit of time throughout (ns in run, seconds in the twin)."""
+    tolerance = refresh * 1e-6
+    return next_flip <= light_by + tolerance and light_by < next_flip + refresh - tolerance and ready > next_flip
 
 
 def _run_single(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: Any) -> None:
@@ -887,6 +948,7 @@ def _run_single(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: 
             frame, t0, t1 = _timed_read(source)
         if frame is None:
             summary.stop_reason = "source ended"
+            summary.dropped += stale  # (skipped as stale just before)
             return
         if flashing:
             pipeline.restore()
@@ -904,9 +966,13 @@ def _run_locked(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: 
     flash) goes out at the flip whose light covers the first exposure that can still be reached
     (the flips before it show the new pattern), the pattern itself at the one after.  With no lag
     and 5 ms of processing that is the next flip and every frame is taken whole under its light
-    (the twin's locked camera); a projector lagging a refresh gets every other frame.  Frames whose
-    exposure began before the light was on are skipped and counted as dropped (at most
-    ``MAX_STALE_FRAMES`` in a row: until the lock holds, or when a frame took too long).
+    (the twin's locked camera).  A projector lagging a refresh needs the next exposure's light at
+    the flip right after the frame is read, before it can be processed: the last frame's light
+    goes out there first (:func:`light_ahead`, decided by the processing time measured so far),
+    then the frame is processed and its pattern follows -- every frame is still taken, under a
+    light a frame older.  Frames whose exposure began before the light was on are skipped and
+    counted as dropped (at most ``MAX_STALE_FRAMES`` in a row: until the lock holds, or when a
+    frame took too long).
     """
     from .lock import PhaseLock
 
@@ -922,6 +988,8 @@ def _run_locked(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: 
                      shortest_ns=getattr(source, "shortest_frame_ns", 0))
     lit_ns = 0  # when the last exposure light went on (its flip + the lag); the full lamp until the first
     made, last_start = 0, 0  # the camera's frames since the first read, by their exposures' starts
+    busy_ns = 0  # the longest of the last frames' processing (read to pattern drawn), for light_ahead
+    recent: collections.deque[int] = collections.deque(maxlen=8)
     while True:
         if _finished(summary, stop, rc):
             return
@@ -937,32 +1005,49 @@ def _run_locked(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: 
             frame, t0, t1 = _timed_read(source)
         if frame is None:
             summary.stop_reason = "source ended"
+            summary.dropped += stale  # (skipped as stale just before)
             return
+        started = display.clock()
+        pipeline.ahead, pipeline.pattern_on_ns = False, None
+        if lock.locked and display.presented_ns:
+            now_flip = display.next_flip_ns(refresh_ns)
+            ready = started + busy_ns + FLIP_MARGIN_NS
+            if light_ahead(now_flip, ready, frame.exposure_start_ns + period_ns - lag_ns, refresh_ns):
+                pipeline.flash_ahead(frame.index + 1)
+                pipeline.ahead = True
+                flips = -(-(ready - now_flip) // refresh_ns)  # the pattern: the first flip after ready
+                pipeline.pattern_on_ns = now_flip + flips * refresh_ns + lag_ns
         rec = pipeline.process(frame, t0, t1)
-        # the light's flip: the last before the first exposure still to come that it can reach
-        # (once the lock holds; until then, the next flip)
-        reach = display.next_flip_ns(refresh_ns) + lag_ns
-        coming = frame.exposure_start_ns + period_ns
-        while coming < reach:
-            coming += period_ns
-        blank = display.presented_ns
-        pipeline.lift_at_ns = (blank + (coming - lag_ns - blank) // refresh_ns * refresh_ns
-                               if lock.locked and blank else 0)
+        recent.append(display.clock() - started)
+        busy_ns = max(recent)
+        if not pipeline.ahead:
+            # the light's flip: the last before the first exposure still to come that it can reach
+            # (once the lock holds; until then, the next flip)
+            reach = display.next_flip_ns(refresh_ns) + lag_ns
+            coming = frame.exposure_start_ns + period_ns
+            while coming < reach:
+                coming += period_ns
+            blank = display.presented_ns
+            pipeline.lift_at_ns = (blank + (coming - lag_ns - blank) // refresh_ns * refresh_ns
+                                   if lock.locked and blank else 0)
+            pipeline.lit_frame = frame.index + round((coming - frame.exposure_start_ns) / period_ns)
         if pipeline.emit(rec, stale):
             summary.stop_reason = "stopped from the window (e)"
             return
-        pipeline.after_exposure(rec)
+        if not pipeline.ahead:
+            pipeline.after_exposure(rec)
         lit_ns = display.presented_ns + lag_ns  # (kms waited for the light's flip before the pattern's)
         # the camera's frames between two read (gone while the loop was busy, or skipped as stale)
         if last_start:
             made += max(1, round((frame.exposure_start_ns - last_start) / period_ns))
         last_start = frame.exposure_start_ns
-        if summary.frames >= 60 and summary.frames <= 0.6 * made and not summary.notes:
+        if made >= 60 and summary.frames <= 0.6 * made and not summary.notes:
             summary.notes.append(
-                f"the locked loop read {summary.frames} of the camera's {made + 1} frames: each exposure light "
-                "could not reach the next exposure (processing and the display lag too long for the frame "
-                "period); in the twin at a one-refresh lag pulse read so removed 0.851 against dim holes' 0.906 -- "
-                "--strategy dim, or a camera frame period of more refreshes")
+                f"the locked loop processed {summary.frames} of the camera's {made + 1} frames: no exposure light "
+                "could reach the next exposure, not even the last frame's put out ahead (the display lag more "
+                "than a refresh, or processing too long for the frame period); in the twin at a 12 ms lag pulse "
+                "so removed 0.780 against dim holes' 0.871 -- --strategy dim, or a camera frame period of "
+                "more refreshes")
 
 
 def _run_threads(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: Any) -> None:

@@ -151,7 +151,10 @@ class _LockedRun(_FreeRunning):
     and its exposure light goes out at the flip whose light (``lag`` after it) covers the first
     exposure still to come that it can reach, the new pattern in the flips before it, the
     pattern again at the flip after; a frame that began before the light was on is skipped (at
-    most ``MAX_STALE_FRAMES``).  ``period``: the camera's frame period.
+    most ``MAX_STALE_FRAMES``).  When the frame cannot be ready in time for the next exposure's
+    flip and that flip is the next one (a display lagging about a refresh), the last frame's light
+    goes out there before the frame is processed -- the light ahead (``runtime.light_ahead``) --
+    and the frame's pattern at the flip after.  ``period``: the camera's frame period.
     """
 
     def __init__(self, refresh: float, latency: float, lag: float, period: float) -> None:
@@ -170,9 +173,18 @@ class _LockedRun(_FreeRunning):
         return True
 
     def processed(self, start: float, end: float) -> float:
+        from .runtime import FLIP_MARGIN_NS, light_ahead
+
         r = self.refresh
-        first = _flip_lands(max(end + self.latency, self.pending), r)  # what a flip asked for now lands at
+        margin = FLIP_MARGIN_NS / 1e9
         coming = start + self.period
+        now = _flip_lands(max(end, self.pending), r)  # what a flip asked for on reading lands at
+        if light_ahead(now, end + self.latency + margin, coming - self.lag, r):
+            pattern = _flip_lands(max(end + self.latency, now), r)  # after the light's flip
+            self.events += [(now + self.lag, True), (pattern + self.lag, False)]
+            self.lit, self.pending, self.handed, self.stale = now + self.lag, pattern, now, 0
+            return pattern + self.lag
+        first = _flip_lands(max(end + self.latency, self.pending), r)  # what a flip asked for now lands at
         while coming < first + self.lag - 1e-9:
             coming += self.period
         lift = max(first, math.floor((coming - self.lag) / r + 1e-9) * r)  # the last flip whose light covers it

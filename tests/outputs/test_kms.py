@@ -6,6 +6,7 @@ import tempfile
 import time
 import types
 
+import cv2
 import numpy as np
 import pytest
 
@@ -168,11 +169,14 @@ class VirtualCard(Card):
     def __init__(self):
         super().__init__()
         self.landed = []
+        self.images = []  # what each flip showed
         VirtualCard.cards.append(self)
 
     def flip(self, fb, data):
         lands = (self.clock[0] // REFRESH_NS + 1) * REFRESH_NS
-        self.landed.append((lands, int(VirtualCard.buffers[fb].pixels()[..., 0].min())))
+        image = VirtualCard.buffers[fb].pixels()[..., 0].copy()
+        self.landed.append((lands, int(image.min())))
+        self.images.append(image)
         self.events.append(types.SimpleNamespace(type=EventType.FLIP_COMPLETE, seq=len(self.commits),
                                                  time=lands / 1e9, data=data))
         os.write(self.write_fd, b"x")
@@ -205,7 +209,7 @@ class RegisteredFramebuffer(DumbFramebuffer):
         return raw[:, : self.width * 4].reshape(self.height, self.width, 4)
 
 
-@pytest.mark.parametrize("lag_ns, every", [(0, 1), (REFRESH_NS, 2)])
+@pytest.mark.parametrize("lag_ns, every", [(0, 1), (REFRESH_NS, 1), (12_000_000, 2)])
 def test_the_camera_locked_to_the_projector_takes_its_exposures_under_the_lifted_holes(tmp_path, monkeypatch,
                                                                                       lag_ns, every):
     # a free-running 60 Hz camera, its clock 50 ppm fast, its exposures 5.1 ms into a refresh at
@@ -222,6 +226,7 @@ def test_the_camera_locked_to_the_projector_takes_its_exposures_under_the_lifted
     from conftest import draw_discs
 
     import antiscatter.outputs.kms as kms_module
+    import antiscatter.runtime as runtime
     from antiscatter.config import load_config
     from antiscatter.runtime import run
     from antiscatter.sources.base import Frame, FrameSource
@@ -235,6 +240,23 @@ def test_the_camera_locked_to_the_projector_takes_its_exposures_under_the_lifted
     resources.reserve_connector().get_default_mode = lambda: display
     monkeypatch.setattr(kms_module, "load_pykms", lambda: pykms)
     monkeypatch.setitem(kms_module.KmsOutput.__init__.__kwdefaults__, "clock", lambda: clock[0])
+    process = runtime._Pipeline.process
+
+    told = []  # the light the detector is told the next exposure gets, after each frame processed
+
+    def processed_in_virtual_time(self, *args, **kwargs):  # processing takes `latency`
+        rec = process(self, *args, **kwargs)
+        clock[0] += latency
+        told.append(None)
+        return rec
+
+    def light_told(light, *args, **kwargs):
+        told[-1] = cv2.resize(light, (320, 200), interpolation=cv2.INTER_NEAREST)
+        return camera_light(light, *args, **kwargs)
+
+    camera_light = runtime.camera_light
+    monkeypatch.setattr(runtime._Pipeline, "process", processed_in_virtual_time)
+    monkeypatch.setattr(runtime, "camera_light", light_told)
 
     class VirtualCamera(FrameSource):
         live, size, shortest_frame_ns = True, (160, 120), 16_560_000
@@ -258,38 +280,53 @@ def test_the_camera_locked_to_the_projector_takes_its_exposures_under_the_lifted
             if len(self.exposures) == 90:
                 return None
             self.exposures.append((start, end, self.made))
-            clock[0] = end + latency  # read as it ends, processed meanwhile
+            clock[0] = end + 500_000  # read half a millisecond after it ends
             k = len(self.exposures)
             image = draw_discs(self.size, [(30.0 + k, 50.0, 5.0), (120.0 - k, 80.0, 4.0)])
             return Frame(image, len(self.exposures) - 1, start + exposure // 2, exposure)
 
     metrics = tmp_path / "m.csv"
     config = load_config(overrides={"source": {"spec": "camera", "camera_lock": True, "camera_exposure_ms": 4.0},
-                                    "output": {"outputs": ("kms",)}, "run": {"metrics": str(metrics)},
+                                    "output": {"outputs": ("kms", f"files:{tmp_path / 'p'}")},
+                                    "run": {"metrics": str(metrics)},
                                     "pattern": {"display_lag_ms": lag_ns / 1e6},
                                     "track": {"latency_ms": 5.0},  # (the loop's own clock is not virtual)
-                                    "light": {"levels": "fixed"}})  # (every lifted hole at dim_level)
+                                    # (every lifted hole at dim_level; the detector told each light)
+                                    "light": {"levels": "fixed", "compensate": True}})
     assert config.light.strategy == "pulse"  # auto, with the camera locked
     camera = VirtualCamera()
     out = io.StringIO()
     summary = run(config, source=camera, log=io.StringIO(), out=out)
     # every other frame: said at the end, with what does better
-    assert ("note: the locked loop read 60 of the camera's 119 frames" in out.getvalue()) == (every == 2)
+    assert ("note: the locked loop processed" in out.getvalue()) == (every == 2)
     # each flip's light: from its flip + the lag, and the least value it showed
     light = [(t + lag_ns, least) for t, least in VirtualCard.cards[-1].landed]
     rows = list(csv.DictReader(metrics.open()))
     assert summary.frames == len(rows) and summary.frames + summary.dropped == 90
-    # locked within 20 frames: from then on the camera's frames are read every frame (every other
-    # with the lag; none skipped as stale, none more gone while the loop was busy), each exposed
-    # whole inside a refresh of lifted holes
-    settled = camera.exposures[20:]
+    # locked within 20 frames: from then on the camera's frames are processed every frame (every
+    # other with a lag of more than a refresh: the one between is read but skipped as stale; with
+    # no lag or one refresh's, none skipped, none gone while the loop was busy), each exposed whole
+    # inside a refresh of lifted holes
+    processed = {int(r["Capture Timestamp (ns)"]) for r in rows[20:]}
+    settled = [e for e in camera.exposures if e[0] + exposure // 2 in processed]
+    assert len(settled) == len(processed)
     assert [m for _, _, m in settled] == list(range(settled[0][2], settled[0][2] + every * len(settled), every))
-    assert all(int(r["Dropped Frames"]) == 0 for r in rows[20:])
+    if every == 1:
+        assert all(int(r["Dropped Frames"]) == 0 for r in rows[20:])
     lifted = round(config.light.dim_level * 255)
     for start, end, _ in settled:
         before = [(t, least) for t, least in light if t <= start]
         after = [t for t, _ in light if t > start]
         assert before[-1][1] >= lifted and end <= after[0], (start, end, before[-1])  # the holes lifted
+    # the detector is told the light each exposure was taken under (with the light ahead, the one
+    card = VirtualCard.cards[-1]
+    # that went out before the frame before it was processed); and the files output keeps that
+    # light as flash-N.png for frame N
+    for (start, end, _), j in zip(settled, range(20, len(rows))):
+        under = max(i for i, (t, _) in enumerate(light) if t <= start)
+        assert np.array_equal(told[j - 1], card.images[under]), j
+        kept = cv2.imread(str(tmp_path / "p" / f"flash-{rows[j]['Frame']}.png"), cv2.IMREAD_UNCHANGED)
+        assert np.array_equal(cv2.resize(kept, (320, 200), interpolation=cv2.INTER_NEAREST), card.images[under])
     # ... and between exposures the holes dark: the pattern (its holes at 0) follows each light
     assert sum(least == 0 for _, least in light[40:]) >= len(light[40:]) // 2 - 1
     errors = [abs(float(r["Exposure Phase Error (s)"])) for r in rows[20:]]

@@ -28,9 +28,11 @@ class LightOutput:
              detections: Detections | None = None) -> None:
         raise NotImplementedError
 
-    def flash(self, image: np.ndarray) -> None:
+    def flash(self, image: np.ndarray, before: int | None = None) -> None:
         """Show the light for the next exposure: the uniform detection flash (``light.strategy =
-        "flash"``) or the last pattern with its holes lifted (``"pulse"``); by default like a pattern."""
+        "flash"``) or the last pattern with its holes lifted (``"pulse"``); by default like a pattern.
+        before: the index of the frame it lights, when the caller knows it (a locked camera's loop
+        shows it after the frame before is read); else the frame after the last pattern shown."""
         self.show(image)
 
     def restore(self, pattern: np.ndarray) -> None:

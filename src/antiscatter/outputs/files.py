@@ -27,7 +27,7 @@ class PngFolderOutput(LightOutput):
 
     def __init__(self, folder: str | Path) -> None:
         self.folder = Path(folder)
-        self._count = 0
+        self._next = 0  # the frame after the last pattern written
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
@@ -35,13 +35,13 @@ class PngFolderOutput(LightOutput):
 
     def show(self, pattern: np.ndarray, frame: Frame | None = None,
              detections: Detections | None = None) -> None:
-        index = frame.index if frame is not None else self._count
-        self._count += 1
+        index = frame.index if frame is not None else self._next
+        self._next = index + 1
         self._write(self.folder / f"{index}.png", pattern)
 
-    def flash(self, image: np.ndarray) -> None:
+    def flash(self, image: np.ndarray, before: int | None = None) -> None:
         """The light before frame N's capture (flash or pulse) goes to ``flash-N.png``."""
-        self._write(self.folder / f"flash-{self._count}.png", image)
+        self._write(self.folder / f"flash-{self._next if before is None else before}.png", image)
 
     def restore(self, pattern: np.ndarray) -> None:
         """The pattern put back after a capture is the last N.png already written: nothing new."""
