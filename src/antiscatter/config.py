@@ -269,9 +269,10 @@ STRATEGIES = ("none", "dim", "pulse", "flash", "coast")
 HARDWARE_STRATEGY = "dim"
 #: what ``auto`` picks with the camera locked to the projector (``source.camera_lock``): pulsed
 #: holes, the twin's best co-located figures with a locked camera -- run's locked loop (``twin
-#: --camera-lock``) 0.954 / 0.959 against dim's 0.938 / 0.958.  Not with a projector that lags a
-#: refresh (``pattern.display_lag_ms``): the loop then reads every other frame, 0.851 / 0.954
-#: against dim's 0.906 / 0.960, and says so at the end of the run
+#: --camera-lock``) 0.954 / 0.959 against dim's 0.938 / 0.958; with a projector that lags a
+#: refresh (``pattern.display_lag_ms``) the loop puts each light out a frame ahead and still reads
+#: every frame, 0.940 / 0.959 against dim's 0.906 / 0.960.  A lag of more than a refresh (12 ms)
+#: leaves it every other frame, 0.780 / 0.909 against dim's 0.871 / 0.960, and the run says so
 LOCKED_STRATEGY = "pulse"
 
 

@@ -226,7 +226,8 @@ class TwinGeometry:
     and ``flash`` the loop is then ``run``'s on such a camera (:class:`_FreeRunning`).
     camera_lock: with ``pulse`` and ``flash``, the loop ``run --camera-lock`` runs once its lock
     holds (:class:`_LockedRun`) instead of the locked ideal: one thread, so a frame's light must be
-    ready for the next exposure or the loop reads every other frame.
+    ready for the next exposure, or go out a frame ahead (a lag of about a refresh), or the loop
+    reads every other frame.
     display_lag_s: how long after a flip its image is light on the scene (a DLP projector that
     formats one frame while it shows the last lags a refresh); every pattern, pulse and flash is on
     that much later.  With the locked ideal the camera is taken to be triggered by the light.

@@ -305,6 +305,7 @@ LONG_RUNS = ((0.0, 5.0, "calibrated", "dim", True, "locked", 0), (0.0, 5.0, "cal
              (0.0, 5.0, "calibrated", "pulse", True, "as run", 0),
              (0.0, 5.0, "calibrated", "dim", True, "locked", 1), (0.0, 5.0, "calibrated", "pulse", True, "as run", 1),
              (0.12, 5.0, "probe", "dim", True, "locked", 0), (0.12, 5.0, "probe", "pulse", True, "locked", 0),
+             (0.12, 5.0, "probe", "pulse", True, "as run", 1),
              (0.12, 20.0, "probe", "pulse", False, "locked", 0), (0.12, 20.0, "probe", "pulse", True, "locked", 0))
 FREE_PHASES = (0.0, 0.25, 0.5, 0.75)
 
