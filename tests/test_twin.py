@@ -331,10 +331,12 @@ def test_scoreboard_long_table(monkeypatch):
     assert [(r["baseline_m"], r["latency_ms"]) for r in rows] == [(b, lat) for b, lat, *_ in LONG_RUNS]
     dim, pulse = "default, calibrated, dim, predict", "default, calibrated, pulse, predict"
     assert [r["run"] for r in rows] == [dim, pulse, dim, pulse, pulse, dim, pulse] + [
-        "default, probe, dim, predict", "default, probe, pulse, predict", "default, probe, pulse",
-        "default, probe, pulse, predict"]
-    assert [r["camera"] for r in rows] == ["locked"] * 2 + ["free"] * 2 + ["as run", "locked", "as run"] + ["locked"] * 4
-    assert [r["display_lag_ms"] for r in rows] == pytest.approx([0] * 5 + [1000 / 120] * 2 + [0] * 4)
+        "default, probe, dim, predict", "default, probe, pulse, predict", "default, probe, pulse, predict",
+        "default, probe, pulse", "default, probe, pulse, predict"]
+    assert [r["camera"] for r in rows] == (["locked"] * 2 + ["free"] * 2 + ["as run", "locked", "as run"]
+                                           + ["locked"] * 2 + ["as run"] + ["locked"] * 2)
+    assert [r["display_lag_ms"] for r in rows] == pytest.approx([0] * 5 + [1000 / 120] * 2 + [0] * 2
+                                                                + [1000 / 120] + [0] * 2)
     # the free-running camera's scenes each at its own phase of the refresh, the locked ones at none;
     # run's locked loop and the lag where the table says
     assert [s[7] for s in seen[4:8]] == [0.0, 0.25, 0.0, 0.25] and {s[7] for s in seen[8:]} == {None}
