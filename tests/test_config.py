@@ -145,3 +145,25 @@ def test_the_display_lag_is_a_time_in_ms():
     for bad in (-1.0, float("nan"), 5000.0):
         with pytest.raises(UsageError, match=f"pattern.display_lag_ms: got {bad}, allowed 0..1000 ms"):
             load_config(overrides={"pattern": {"display_lag_ms": bad}})
+
+
+def test_auto_takes_dim_holes_without_the_lock_when_no_light_can_reach_the_next_exposure():
+    # 60 Hz camera, 120 Hz projector, 4 ms exposures: a light reaches the next exposure -- a frame
+    # ahead at the latest -- while the display lags less than 16.67 - (8.33 + 4) / 2 - 1 = 9.5 ms
+    locked = {"spec": "camera", "camera_lock": True, "camera_exposure_ms": 4.0}
+    kms = {"outputs": ("kms",)}
+
+    def config(lag, **light):
+        return load_config(overrides={"source": locked, "output": kms, "pattern": {"display_lag_ms": lag},
+                                      "light": light})
+
+    refresh = config(1000 / 120)
+    assert refresh.light.strategy == "pulse" and refresh.source.camera_lock and refresh.notes == ()
+    longer = config(12.0)
+    assert longer.light.strategy == "dim" and not longer.source.camera_lock
+    assert len(longer.notes) == 1 and "pattern.display_lag_ms 12: no exposure light can reach" in longer.notes[0]
+    asked = config(12.0, strategy="pulse")  # asked for: the lock stays, the run says what it read
+    assert asked.light.strategy == "pulse" and asked.source.camera_lock and asked.notes == ()
+    with pytest.raises(UsageError, match="source.camera_lock: needs a fixed camera_exposure_ms"):
+        load_config(overrides={"source": {**locked, "camera_exposure_ms": 0.0}, "output": kms,
+                               "pattern": {"display_lag_ms": 12.0}})

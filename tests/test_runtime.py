@@ -75,3 +75,13 @@ def test_run_on_the_simulator_writes_metrics_and_detections(tmp_path):
     assert per_frame.tolist() == [int(r["Number of MECs on screen"]) for r in rows]
     text = out.getvalue()
     assert "Connected Components" in text and "frames per second" in text
+
+
+def test_run_says_what_the_configuration_decided_for_it():
+    import dataclasses
+    import io
+
+    config = load_config(overrides={"output": {"outputs": ("none",)}, "run": {"frames": 2}})
+    log = io.StringIO()
+    run(dataclasses.replace(config, notes=("strategy auto took dim holes",)), log=log, out=io.StringIO())
+    assert "note: strategy auto took dim holes\n" in log.getvalue()

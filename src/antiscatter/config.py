@@ -272,8 +272,24 @@ HARDWARE_STRATEGY = "dim"
 #: --camera-lock``) 0.954 / 0.959 against dim's 0.938 / 0.958; with a projector that lags a
 #: refresh (``pattern.display_lag_ms``) the loop puts each light out a frame ahead and still reads
 #: every frame, 0.940 / 0.959 against dim's 0.906 / 0.960.  A lag of more than a refresh (12 ms)
-#: leaves it every other frame, 0.780 / 0.909 against dim's 0.871 / 0.960, and the run says so
+#: leaves it every other frame, 0.780 / 0.909 against dim's 0.871 / 0.960: ``auto`` then keeps
+#: ``dim`` (:func:`locked_light_reaches`)
 LOCKED_STRATEGY = "pulse"
+#: locked: how long after its exposure ends a frame is taken to be read, and a flip asked for
+#: (runtime.FLIP_MARGIN_NS)
+READ_MARGIN_S = 1e-3
+
+
+def locked_light_reaches(source: "SourceConfig", pattern: "PatternConfig") -> bool:
+    """With the camera locked to the projector, whether an exposure light can reach the exposure
+    after the frame just read -- at the latest by the flip right after the read, the light a
+    frame ahead (runtime.light_ahead).  Each exposure sits in the middle of a refresh's light,
+    which comes ``display_lag_ms`` after its flip; the flip must come after the frame is read
+    (its exposure's end plus ``READ_MARGIN_S``): lag < frame period - (refresh + exposure) / 2 -
+    margin, 9.5 ms at 60 / 120 Hz with a 4 ms exposure."""
+    period, refresh = 1.0 / source.camera_fps, 1.0 / pattern.refresh_hz
+    exposure = source.camera_exposure_ms / 1e3
+    return pattern.display_lag_ms / 1e3 < period - (refresh + exposure) / 2 - READ_MARGIN_S
 
 
 @dataclass(frozen=True)
@@ -432,6 +448,7 @@ class Config:
     run: RunConfig = field(default_factory=RunConfig)
     track: TrackConfig = field(default_factory=TrackConfig)
     light: LightConfig = field(default_factory=LightConfig)
+    notes: tuple[str, ...] = ()  # what load_config decided that the user should hear of (run prints them)
 
 
 _SECTIONS = {"source": SourceConfig, "detector": DetectorConfig, "pattern": PatternConfig,
@@ -555,7 +572,19 @@ def load_config(path: str | Path | None = None, overrides: dict[str, dict[str, A
     camera = sections["source"].spec.split(":")[0] == "camera"
     track = sections["track"]
     lock = sections["source"].camera_lock
+    notes: tuple[str, ...] = ()
     if light.strategy == "auto":
+        if lock and camera:
+            _check_lock(sections["source"], sections["output"], sections["pattern"],
+                        dataclasses.replace(light, strategy=LOCKED_STRATEGY))
+            if not locked_light_reaches(sections["source"], sections["pattern"]):
+                # pulse would read every other frame: dim holes, which need no lock, do better
+                lock = False
+                sections["source"] = dataclasses.replace(sections["source"], camera_lock=False)
+                notes = (f"pattern.display_lag_ms {sections['pattern'].display_lag_ms:g}: no exposure light can "
+                         "reach the next exposure (the lag must be below the frame period less half a refresh and "
+                         "half the exposure, less 1 ms), so strategy auto takes dim holes without the camera lock "
+                         "(in the twin at a 12 ms lag: 0.871 removed against locked pulse's 0.780)",)
         light = dataclasses.replace(light, strategy=(LOCKED_STRATEGY if lock else HARDWARE_STRATEGY) if camera
                                     else "none")
         if camera:
@@ -588,7 +617,7 @@ def load_config(path: str | Path | None = None, overrides: dict[str, dict[str, A
         track = dataclasses.replace(track, enabled=True)
     return Config(source=sections["source"], detector=sections["detector"], detector_params=params,
                   pattern=sections["pattern"], output=sections["output"], run=sections["run"],
-                  track=track, light=light)
+                  track=track, light=light, notes=notes)
 
 
 def _check_lock(source: "SourceConfig", output: Any, pattern: "PatternConfig", light: "LightConfig") -> None:

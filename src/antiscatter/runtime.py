@@ -836,6 +836,8 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
         print(f"antiscatter run: source {config.source.spec} ({source.size[0]}x{source.size[1]}), "
               f"detector {detector.name}{tracking}, pattern {config.pattern.width}x{config.pattern.height}, "
               f"output {names}, mode {rc.mode}, light strategy {config.light.strategy}", file=log)
+        for note in config.notes:
+            print(f"note: {note}", file=log)
         if (config.light.strategy in ("pulse", "flash") and getattr(source, "live", False)
                 and not config.source.camera_lock):
             print(f"note: {config.light.strategy} on a free-running camera reads every other frame, each exposure "

@@ -292,7 +292,9 @@ def test_the_camera_locked_to_the_projector_takes_its_exposures_under_the_lifted
                                     "pattern": {"display_lag_ms": lag_ns / 1e6},
                                     "track": {"latency_ms": 5.0},  # (the loop's own clock is not virtual)
                                     # (every lifted hole at dim_level; the detector told each light)
-                                    "light": {"levels": "fixed", "compensate": True}})
+                                    # (a lag beyond a refresh: auto would take dim holes unlocked)
+                                    "light": {"levels": "fixed", "compensate": True,
+                                              "strategy": "pulse" if every == 2 else "auto"}})
     assert config.light.strategy == "pulse"  # auto, with the camera locked
     camera = VirtualCamera()
     out = io.StringIO()
