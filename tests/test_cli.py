@@ -804,6 +804,21 @@ def test_the_vehicles_default_configuration_runs_on_a_live_source(tmp_path):
             assert 0.7 < held.sum() / (last == 0).sum() < 1.3 and (last[held] == 0).mean() > 0.6
 
 
+def test_lock_check_command_refuses_bad_settings_and_needs_the_camera(cli):
+    for args, message in [(("--frames", "5"), "--frames 5: allowed >= 20"),
+                          (("--camera-exposure-ms", "10"), "--camera-exposure-ms 10: allowed 0 < exposure <= one "
+                                                           "refresh (8.33 ms at 120 Hz)"),
+                          (("--camera-fps", "50"), "--camera-fps 50: allowed a frame period of whole projector"),
+                          (("--display-lag-ms", "-2"), "--display-lag-ms -2.0: allowed 0..1000")]:
+        bad = cli("lock-check", *args)
+        assert bad.code == 2 and message in bad.err and "Traceback" not in bad.err, bad.err
+    try:
+        import picamera2  # noqa: F401
+    except ImportError:  # off the Pi: one line saying what it needs
+        off = cli("lock-check")
+        assert off.code == 2 and "source 'camera' needs the picamera2 package" in off.err and "Traceback" not in off.err
+
+
 def test_display_lag_command_needs_the_camera_and_the_projector(cli):
     bad = cli("display-lag", "--trials", "0")
     assert bad.code == 2 and "--trials 0: allowed >= 1" in bad.err and "Traceback" not in bad.err

@@ -364,6 +364,22 @@ def build_parser() -> argparse.ArgumentParser:
     dl.add_argument("--refresh-hz", type=float, default=120.0, help="the projector's refresh rate (default 120)")
     dl.add_argument("--trials", type=int, default=12, help="black-to-white trials (default 12)")
 
+    lc = commands.add_parser(
+        "lock-check", help="whether the camera locks to the projector as --camera-lock needs, seen by the camera",
+        description="Run the camera lock of run --camera-lock with the camera looking at what the projector "
+                    "(output kms) lights: white at the flip whose light covers each next exposure, black after. "
+                    "Once the lock holds, every exposure must be lit whole; one lit in part says the sensor's "
+                    "timestamps or the display lag are off, no lock that the frame durations are not applied. "
+                    "Exit 0 when it passes, 1 when it does not.")
+    lc.add_argument("--size", default="728x544", metavar="WxH", help="camera frame size (default 728x544)")
+    lc.add_argument("--camera-fps", type=float, default=60.0, help="camera frame rate (default 60)")
+    lc.add_argument("--camera-exposure-ms", type=float, default=4.0,
+                    help="fixed camera exposure, ms, inside one refresh (default 4)")
+    lc.add_argument("--refresh-hz", type=float, default=120.0, help="the projector's refresh rate (default 120)")
+    lc.add_argument("--display-lag-ms", type=float, default=0.0,
+                    help="[pattern] display_lag_ms, as measured by display-lag (default 0)")
+    lc.add_argument("--frames", type=int, default=240, help="frames to run the lock for (default 240)")
+
     be = commands.add_parser(
         "bench", help="per-stage latency of every detector, side by side (the report's table 1)",
         description="Time every detector's stages on the same simulator frames, interleaved, at 800x600 "
@@ -956,6 +972,61 @@ def _display_lag(args: argparse.Namespace) -> int:
     return 0
 
 
+def _lock_check(args: argparse.Namespace) -> int:
+    """``lock-check``: the camera lock, judged by the light each exposure gathers."""
+    from .lock import lock_check
+    from .outputs import open_output
+    from .sources import open_source
+
+    if args.frames < 20:
+        raise UsageError(f"--frames {args.frames}: allowed >= 20 (the lock takes up to 30 to hold)")
+    if not (math.isfinite(args.refresh_hz) and args.refresh_hz > 0):
+        raise UsageError(f"--refresh-hz {args.refresh_hz}: allowed a number > 0")
+    refresh_ms = 1e3 / args.refresh_hz
+    if not 0 < args.camera_exposure_ms <= refresh_ms:
+        raise UsageError(f"--camera-exposure-ms {args.camera_exposure_ms:g}: allowed 0 < exposure <= one refresh "
+                         f"({refresh_ms:.2f} ms at {args.refresh_hz:g} Hz)")
+    if not (math.isfinite(args.camera_fps) and args.camera_fps > 0):
+        raise UsageError(f"--camera-fps {args.camera_fps}: allowed a number > 0")
+    turns = args.refresh_hz / args.camera_fps
+    if abs(turns - round(turns)) > 1e-3 or round(turns) < 1:
+        raise UsageError(f"--camera-fps {args.camera_fps:g}: allowed a frame period of whole projector refreshes "
+                         f"(--refresh-hz {args.refresh_hz:g})")
+    if not (math.isfinite(args.display_lag_ms) and 0 <= args.display_lag_ms <= 1000):
+        raise UsageError(f"--display-lag-ms {args.display_lag_ms}: allowed 0..1000")
+    size = _size_arg(args.size, "--size")
+    with open_source("camera", size=size, fps=args.camera_fps, exposure_ms=args.camera_exposure_ms) as source, \
+            open_output("kms") as display:
+        result = lock_check(source, display, refresh_ns=int(round(1e9 / args.refresh_hz)),
+                            period_ns=int(round(1e9 / args.camera_fps)),
+                            exposure_ns=int(round(args.camera_exposure_ms * 1e6)),
+                            lag_ns=int(round(args.display_lag_ms * 1e6)), frames=args.frames)
+    print(format_lock_check(result))
+    return 0 if result["ok"] else 1
+
+
+def format_lock_check(result: dict) -> str:
+    """The lock check's verdict in a few lines."""
+    if result["locked_at"] is None:
+        return (f"lock check: FAILED -- the exposures never held within 5 % of a refresh of their target in "
+                f"{result['frames']} frames: the sensor does not seem to apply FrameDurationLimits frame by frame "
+                "(or its timestamps drift against the display's flips)")
+    median, p99 = result["error_us"]
+    lines = [f"lock check: locked after {result['locked_at']} of {result['frames']} frames; phase error median "
+             f"{median:.1f} us, p99 {p99:.1f} us"]
+    if result["lit_frames"]:
+        lines.append(f"  {result['whole']} of {result['lit_frames']} exposures after it lit whole by the white shown "
+                     f"for them (lit share median {result['median_lit']:.3f}, least {result['least_lit']:.3f})")
+    if result["ok"]:
+        lines.append("  passed: --camera-lock can time pulse and flash to the exposures")
+    elif result["locked_at"] > result["frames"] // 2:
+        lines.append("  FAILED: the lock took more than half the frames to hold")
+    else:
+        lines.append("  FAILED: exposures lit in part straddle the light's edge -- the display lag (measure it with "
+                     "display-lag) or the sensor's timestamp (taken as its exposure's end) is off")
+    return "\n".join(lines)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the console script; returns the exit code."""
     parser = build_parser()
@@ -986,6 +1057,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _calibrate(args)
         if args.command == "display-lag":
             return _display_lag(args)
+        if args.command == "lock-check":
+            return _lock_check(args)
     except UsageError as exc:
         print(f"antiscatter {args.command}: error: {exc}", file=sys.stderr)
         return 2

@@ -26,7 +26,7 @@ import numpy as np
 
 from .errors import UsageError
 
-__all__ = ["PhaseLock", "display_lag", "GAIN", "DELAY", "LOCKED_WITHIN"]
+__all__ = ["PhaseLock", "display_lag", "lock_check", "GAIN", "DELAY", "LOCKED_WITHIN"]
 
 #: the frames a new duration may take to apply: the corrections asked for that long ago or less
 #: are taken as still to come (a Smith predictor), so the loop does not ask for them again
@@ -157,3 +157,83 @@ def display_lag(source: Any, display: Any, *, refresh_ns: int, trials: int = 12,
                          "the frame period (--camera-exposure-ms)")
     lags.sort()
     return {"lag_ms": lags[len(lags) // 2], "spread_ms": (lags[0], lags[-1]), "trials_ms": lags}
+
+
+#: lock check: an exposure counts as wholly under its light (or wholly outside it) within this share
+WHOLE = 0.05
+
+
+def lock_check(source: Any, display: Any, *, refresh_ns: int, period_ns: int, exposure_ns: int, lag_ns: int = 0,
+               frames: int = 240, settle: int = 3) -> dict:
+    """Whether the camera locks to the projector as ``run --camera-lock`` needs it to, checked
+    with the camera looking at what the projector lights (``display``: output ``kms``).
+
+    The loop is the locked loop's without the detector: each frame read steers the camera's next
+    frame duration (:class:`PhaseLock`, exposures to the middle of a refresh's light, ``lag_ns``
+    after its flip), and white goes out at the flip whose light covers the next exposure, black
+    at the flip after.  Each frame's share of its exposure lit, (level - black's) / (white's -
+    black's), is then 1 when the sensor's timestamps, its frame durations and the display lag are
+    all right; an exposure across the light's edge is lit in part.  Returns the frames the lock
+    took, the phase errors and the lit shares of the frames after it, and ``ok``: locked within
+    half the frames, and every frame after it that the white was shown for lit whole.
+    """
+    width, height = display.size
+    black, white = np.zeros((height, width), np.uint8), np.full((height, width), 255, np.uint8)
+
+    def read() -> Any:
+        frame = source.read()
+        if frame is None:
+            raise UsageError("lock check: the camera stopped delivering frames")
+        return frame
+
+    def level(frame: Any) -> float:
+        return float(np.mean(frame.image))
+
+    display.show(black)
+    dark = level([read() for _ in range(settle)][-1])
+    display.show(white)
+    bright = level([read() for _ in range(settle)][-1])
+    if bright - dark < 8:
+        raise UsageError(f"lock check: the projector's white brightened the camera's view by {bright - dark:.1f} "
+                         "grey levels (allowed >= 8): point the camera at what the projector lights")
+    display.show(black)
+    lock = PhaseLock(refresh_ns, period_ns, ((refresh_ns - exposure_ns) // 2 + lag_ns) % refresh_ns,
+                     shortest_ns=getattr(source, "shortest_frame_ns", 0))
+    errors: list[int] = []
+    shares: list[float | None] = []  # each frame's lit share; None: no white was shown for it
+    lit_for: int | None = None  # the exposure start the last white was shown for
+    for _ in range(frames):
+        frame = read()
+        start = frame.exposure_start_ns
+        if not frame.exposure_ns:
+            raise UsageError("lock check: needs the camera's exposure times (a fixed --camera-exposure-ms)")
+        if display.presented_ns:
+            source.set_frame_duration_ns(lock.update(start, display.presented_ns))
+        errors.append(lock.error_ns if lock.error_ns is not None else refresh_ns)
+        aimed = lit_for is not None and abs(start - lit_for) < period_ns // 2
+        shares.append(min(1.0, max(0.0, (level(frame) - dark) / (bright - dark))) if aimed else None)
+        # the white for the first exposure still to come it can reach: at the last flip whose light
+        # (lag_ns on) begins by its start
+        first = display.next_flip_ns(refresh_ns)
+        blank = display.presented_ns or first
+        coming = start
+        flip = first - refresh_ns
+        while flip < first - refresh_ns // 2:
+            coming += period_ns
+            flip = blank + (coming - lag_ns - blank) // refresh_ns * refresh_ns
+        while display.next_flip_ns(refresh_ns) < flip - refresh_ns // 2:
+            display.show(black)  # the flips before it
+        display.show(white)
+        display.show(black)  # (waits for the white's flip to land)
+        lit_for = coming
+    within = [abs(e) <= LOCKED_WITHIN * refresh_ns for e in errors]
+    locked_at = next((k for k in range(len(within)) if all(within[k:])), None)
+    after = shares[locked_at:] if locked_at is not None else []
+    told = [s for s in after if s is not None]
+    whole = sum(s >= 1 - WHOLE for s in told)
+    settled = errors[locked_at:] if locked_at is not None else []
+    return {"locked_at": locked_at, "frames": frames, "lit_frames": len(told), "whole": whole,
+            "least_lit": min(told) if told else None, "median_lit": float(np.median(told)) if told else None,
+            "error_us": (float(np.median(np.abs(settled))) / 1e3, float(np.percentile(np.abs(settled), 99)) / 1e3)
+            if settled else None,
+            "ok": locked_at is not None and locked_at <= frames // 2 and bool(told) and whole == len(told)}

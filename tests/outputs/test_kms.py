@@ -369,3 +369,68 @@ def test_the_display_lag_measured_by_the_camera(lag_ms):
     result = display_lag(Camera(), out, refresh_ns=REFRESH_NS, trials=9)
     assert result["lag_ms"] == pytest.approx(lag_ms, abs=0.15)
     assert result["spread_ms"][1] - result["spread_ms"][0] < 0.3 and len(result["trials_ms"]) >= 4
+
+
+@pytest.mark.parametrize("lag_ms, told_ms, obeys, ok", [
+    (0.0, 0.0, True, True),  # locks, every exposure lit whole by the white shown for it
+    (1000 / 120, 1000 / 120, True, True),  # a projector lagging a refresh, told so
+    (4.0, 0.0, True, False),  # the lag not told: the exposures straddle the light's edge
+    (0.0, 0.0, False, False),  # a sensor that ignores its frame durations never locks
+])
+def test_the_lock_check_sees_whether_each_exposure_is_lit_whole(lag_ms, told_ms, obeys, ok):
+    # a free-running 60 Hz camera (clock 50 ppm fast, durations applied 3 frames late, 16.56 ms at
+    # the shortest, its exposures 5.1 ms into a refresh at first) looking at what a 120 Hz projector
+    # lights lag_ms after each flip; each frame gathers the light over its 4 ms exposure
+    import collections
+
+    from antiscatter.cli import format_lock_check
+    from antiscatter.lock import lock_check
+    from antiscatter.sources.base import Frame
+
+    clock = VirtualCard.clock = [1_000_000_000]
+    pykms = fake_pykms()
+    pykms.Card, pykms.DumbFramebuffer = VirtualCard, RegisteredFramebuffer
+    out = KmsOutput(pykms=pykms, clock=lambda: clock[0])
+    card = VirtualCard.cards[-1]
+    lag, exposure, period, rng = round(lag_ms * 1e6), 4_000_000, 2 * REFRESH_NS, np.random.default_rng(0)
+
+    def light(t):  # the value on the scene at t: the last flip that is light by then
+        return max([(when, v) for when, v in card.landed if when + lag <= t] or [(0, 0)])[1]
+
+    class Camera:
+        shortest_frame_ns = 16_560_000
+
+        def __init__(self):
+            self.next_start, self.requested = clock[0] + 5_100_000, period
+            self.durations, self.count = collections.deque([period] * 3), 0
+
+        def set_frame_duration_ns(self, ns):
+            if obeys:
+                self.requested = ns
+
+        def read(self):
+            while True:  # frames that ended before they were asked for are gone (no queue)
+                start, end = self.next_start, self.next_start + exposure
+                self.durations.append(self.requested)
+                self.next_start = start + round(max(self.durations.popleft(), self.shortest_frame_ns) * (1 + 50e-6))
+                if end > clock[0]:
+                    break
+            clock[0] = end + 500_000
+            lit = np.mean([light(start + exposure * (i + 0.5) / 200) for i in range(200)]) / 255
+            image = np.clip(20 + 200 * lit + rng.normal(0, 1.5, (24, 32)), 0, 255).astype(np.uint8)
+            self.count += 1
+            return Frame(image, self.count, start + exposure // 2, exposure)
+
+    result = lock_check(Camera(), out, refresh_ns=REFRESH_NS, period_ns=period, exposure_ns=exposure,
+                        lag_ns=round(told_ms * 1e6), frames=120)
+    assert result["ok"] is ok, result
+    text = format_lock_check(result)  # what the lock-check command prints
+    if ok:
+        assert result["locked_at"] <= 30 and result["lit_frames"] >= 80 and result["least_lit"] >= 0.95
+        assert result["error_us"][1] < 0.05 * REFRESH_NS / 1e3
+        assert "passed" in text and "FAILED" not in text
+    elif obeys:  # locked, to the wrong moment: about half of each exposure lit
+        assert result["locked_at"] is not None and 0.3 < result["median_lit"] < 0.7
+        assert "FAILED: exposures lit in part" in text and "display lag" in text
+    else:
+        assert result["locked_at"] is None and "FAILED" in text and "FrameDurationLimits" in text
