@@ -149,7 +149,9 @@ def test_the_display_lag_is_a_time_in_ms():
 
 def test_auto_takes_dim_holes_without_the_lock_when_no_light_can_reach_the_next_exposure():
     # 60 Hz camera, 120 Hz projector, 4 ms exposures: a light reaches the next exposure -- a frame
-    # ahead at the latest -- while the display lags less than 16.67 - (8.33 + 4) / 2 - 1 = 9.5 ms
+    # ahead at the latest -- while the display lags less than 16.67 - (8.33 + 4) / 2 - 1 = 9.5 ms;
+    # the light after the pattern, for the exposure after the next, while it lags at most
+    # 33.33 - (25 + 4) / 2 - 1 - 5 = 12.83 ms (5 ms of processing)
     locked = {"spec": "camera", "camera_lock": True, "camera_exposure_ms": 4.0}
     kms = {"outputs": ("kms",)}
 
@@ -157,13 +159,18 @@ def test_auto_takes_dim_holes_without_the_lock_when_no_light_can_reach_the_next_
         return load_config(overrides={"source": locked, "output": kms, "pattern": {"display_lag_ms": lag},
                                       "light": light})
 
-    refresh = config(1000 / 120)
-    assert refresh.light.strategy == "pulse" and refresh.source.camera_lock and refresh.notes == ()
-    longer = config(12.0)
+    for lag in (1000 / 120, 9.4, 9.6, 12.0, 12.8):
+        reached = config(lag)
+        assert reached.light.strategy == "pulse" and reached.source.camera_lock and reached.notes == (), lag
+    longer = config(12.9)
     assert longer.light.strategy == "dim" and not longer.source.camera_lock
-    assert len(longer.notes) == 1 and "pattern.display_lag_ms 12: no exposure light can reach" in longer.notes[0]
-    asked = config(12.0, strategy="pulse")  # asked for: the lock stays, the run says what it read
+    assert len(longer.notes) == 1 and "pattern.display_lag_ms 12.9: no exposure light can reach" in longer.notes[0]
+    asked = config(14.0, strategy="pulse")  # asked for: the lock stays, the run says what it read
     assert asked.light.strategy == "pulse" and asked.source.camera_lock and asked.notes == ()
+    # a camera frame period of three refreshes (40 Hz) reaches further: 50 - 14.5 - 6 = 29.5 ms
+    slower = load_config(overrides={"source": {**locked, "camera_fps": 40.0}, "output": kms,
+                                    "pattern": {"display_lag_ms": 29.0}})
+    assert slower.light.strategy == "pulse" and slower.source.camera_lock
     with pytest.raises(UsageError, match="source.camera_lock: needs a fixed camera_exposure_ms"):
         load_config(overrides={"source": {**locked, "camera_exposure_ms": 0.0}, "output": kms,
                                "pattern": {"display_lag_ms": 12.0}})

@@ -73,3 +73,30 @@ def test_the_light_goes_out_ahead_only_when_the_next_exposure_needs_it_before_th
     start = (TARGET + lag) % REFRESH
     next_flip = ((start + 4_000_000) // REFRESH + 1) * REFRESH
     assert light_ahead(next_flip, ready, start + PERIOD - lag, REFRESH) is ahead
+
+
+@pytest.mark.parametrize("lag, ready, flip", [
+    (12_000_000, 10_500_000, 2),  # 12 ms: the pattern at the flip after ready, the light at the next, for
+    (13_500_000, 9_000_000, 2),   # the exposure after the next, before the next frame is read
+    (12_000_000, 11_000_000, None),  # the pattern a flip later: both no longer fit before that exposure
+    (14_000_000, 10_500_000, None),  # 14 ms: they do not with this processing
+    (REFRESH, 10_500_000, None),  # a refresh's lag: that flip comes after the next read (the light ahead does)
+    (0, 10_500_000, None),  # no lag: the frame's own light reaches the next exposure
+])
+def test_the_light_goes_out_after_the_pattern_only_when_it_is_due_before_the_next_read(lag, ready, flip):
+    from antiscatter.runtime import light_after
+
+    # the exposure starts in the middle of a refresh's light (flips every refresh, from 0), is read
+    # 0.5 ms after its 4 ms end and is ready ``ready`` after its start; the pattern goes out at the
+    # first flip after that
+    start = TARGET + lag
+    pattern_flip = -(-(start + ready) // REFRESH) * REFRESH
+    next_read = start + PERIOD + 4_000_000 + 1_000_000
+    got = light_after(pattern_flip, start + 2 * PERIOD, lag, next_read, REFRESH)
+    if flip is None:
+        assert got is None
+    else:
+        assert got == pytest.approx(pattern_flip + (flip - 1) * REFRESH)
+        # its light is on before the exposure after the next begins, and still on through it
+        assert got + lag <= start + 2 * PERIOD < got + lag + REFRESH - 4_000_000 + 1
+        assert got < next_read

@@ -330,12 +330,12 @@ def test_scoreboard_long_table(monkeypatch):
     rows = _long_rows(3, lambda s: None, seeds=2, workers=1)
     assert [(r["baseline_m"], r["latency_ms"]) for r in rows] == [(b, lat) for b, lat, *_ in LONG_RUNS]
     dim, pulse = "default, calibrated, dim, predict", "default, calibrated, pulse, predict"
-    assert [r["run"] for r in rows] == [dim, pulse, dim, pulse, pulse, dim, pulse] + [
+    assert [r["run"] for r in rows] == [dim, pulse, dim, pulse, pulse, dim, pulse, pulse, pulse] + [
         "default, probe, dim, predict", "default, probe, pulse, predict", "default, probe, pulse, predict",
         "default, probe, pulse", "default, probe, pulse, predict"]
-    assert [r["camera"] for r in rows] == (["locked"] * 2 + ["free"] * 2 + ["as run", "locked", "as run"]
+    assert [r["camera"] for r in rows] == (["locked"] * 2 + ["free"] * 2 + ["as run", "locked"] + ["as run"] * 3
                                            + ["locked"] * 2 + ["as run"] + ["locked"] * 2)
-    assert [r["display_lag_ms"] for r in rows] == pytest.approx([0] * 5 + [1000 / 120] * 2 + [0] * 2
+    assert [r["display_lag_ms"] for r in rows] == pytest.approx([0] * 5 + [1000 / 120] * 2 + [12, 14] + [0] * 2
                                                                 + [1000 / 120] + [0] * 2)
     # the free-running camera's scenes each at its own phase of the refresh, the locked ones at none;
     # run's locked loop and the lag where the table says
@@ -646,13 +646,13 @@ def test_twin_command_free_running_camera(cli):
     assert {r["frames_processed"] for r in runs if r["strategy"] not in ("pulse", "flash")} == {8}
     bad = cli("twin", "--camera-phase", "1.5", "--frames", "2")
     assert bad.code == 2 and "camera_phase: got 1.5, allowed 0 <= phase < 1" in bad.err and "Traceback" not in bad.err
-    # run's locked loop on a projector lagging more than a refresh: every other frame for pulse and
-    # flash (a refresh: every frame, the light a frame ahead)
+    # run's locked loop on a projector lagging 14 ms: every other frame for pulse and flash (a
+    # refresh: every frame, the light a frame ahead; 12 ms: every frame, the light after the pattern)
     lagged = cli("twin", "--frames", "8", "--size", "200x150", "--preset", "bubbles", "--baseline-m", "0",
-                 "--camera-lock", "--display-lag-ms", "12", "--json")
+                 "--camera-lock", "--display-lag-ms", "14", "--json")
     assert lagged.code == 0, lagged.err
     out = json.loads(lagged.out)
-    assert out["camera_lock"] and out["display_lag_ms"] == pytest.approx(12)
+    assert out["camera_lock"] and out["display_lag_ms"] == pytest.approx(14)
     runs = [r for r in out["runs"] if r["detector"]]
     assert {r["camera"] for r in runs} == {"locked, as run"}
     assert {r["frames_processed"] for r in runs if r["strategy"] in ("pulse", "flash")} == {4}
@@ -663,14 +663,15 @@ def test_twin_command_free_running_camera(cli):
 
 
 @pytest.mark.parametrize("lag, read, removed", [(0.0, 24, [0.9] * 20), (1 / 120, 24, [0.9] * 20),
-                                                (0.012, 12, [0.9, 1.0] * 10)])
+                                                (0.012, 24, [0.9] * 20), (0.014, 12, [0.9, 1.0] * 10)])
 def test_pulsed_holes_as_run_locks_the_camera(lag, read, removed):
     # run --camera-lock is one thread: each exposure light goes out at the flip whose light covers
     # the next exposure it can reach.  With no display lag (5 ms) that is the next exposure: the
     # locked ideal's figures exactly.  A projector that lags a refresh needs that light before the
     # frame can be processed: the last frame's goes out then, every frame is read.  One that lags
-    # 12 ms cannot light the next exposure at all: every other frame is read, and the lifted holes
-    # are on one refresh in four
+    # 12 ms needs it before the frame is read: each frame's light goes out after its pattern, for
+    # the exposure after the next, and every frame is read.  At 14 ms the pattern and that light no
+    # longer both fit: every other frame is read, and the lifted holes are on one refresh in four
     def run(**kw):
         return simulate_loop(TwinRun("contrast", "calibrated", "pulse", dim_level=0.2, margin_px=12.0),
                              geometry=TwinGeometry(camera_size=SIZE, baseline_m=0.0, display_lag_s=lag, **kw),

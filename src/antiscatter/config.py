@@ -271,25 +271,37 @@ HARDWARE_STRATEGY = "dim"
 #: holes, the twin's best co-located figures with a locked camera -- run's locked loop (``twin
 #: --camera-lock``) 0.954 / 0.959 against dim's 0.938 / 0.958; with a projector that lags a
 #: refresh (``pattern.display_lag_ms``) the loop puts each light out a frame ahead and still reads
-#: every frame, 0.940 / 0.959 against dim's 0.906 / 0.960.  A lag of more than a refresh (12 ms)
-#: leaves it every other frame, 0.780 / 0.909 against dim's 0.871 / 0.960: ``auto`` then keeps
-#: ``dim`` (:func:`locked_light_reaches`)
+#: every frame, 0.940 / 0.959 against dim's 0.906 / 0.960; lagging 12 ms it puts each light out
+#: after its pattern, for the exposure after the next, and still reads every frame, 0.940 / 0.959
+#: (dim 0.906 / 0.960).  A lag past that (14 ms with 5 ms of processing) leaves it every other
+#: frame, 0.832 / 0.954 against dim's 0.906 / 0.960: ``auto`` then keeps ``dim``
+#: (:func:`locked_light_reaches`)
 LOCKED_STRATEGY = "pulse"
 #: locked: how long after its exposure ends a frame is taken to be read, and a flip asked for
 #: (runtime.FLIP_MARGIN_NS)
 READ_MARGIN_S = 1e-3
 
 
+#: locked: the processing a frame is taken to need when its light must go out after its pattern,
+#: before the next frame is read (:func:`locked_light_reaches`; the twin's default latency)
+PROCESSING_BUDGET_S = 5e-3
+
+
 def locked_light_reaches(source: "SourceConfig", pattern: "PatternConfig") -> bool:
-    """With the camera locked to the projector, whether an exposure light can reach the exposure
-    after the frame just read -- at the latest by the flip right after the read, the light a
-    frame ahead (runtime.light_ahead).  Each exposure sits in the middle of a refresh's light,
-    which comes ``display_lag_ms`` after its flip; the flip must come after the frame is read
-    (its exposure's end plus ``READ_MARGIN_S``): lag < frame period - (refresh + exposure) / 2 -
-    margin, 9.5 ms at 60 / 120 Hz with a 4 ms exposure."""
+    """With the camera locked to the projector, whether an exposure light can reach each exposure
+    so that every frame is read.  Each exposure sits in the middle of a refresh's light, which
+    comes ``display_lag_ms`` after its flip.  Either the light for the exposure after the frame
+    just read goes out at a flip after the read (its exposure's end plus ``READ_MARGIN_S``) -- the
+    frame's own light, or the last frame's put out ahead (runtime.light_ahead): lag < frame period
+    - (refresh + exposure) / 2 - margin, 9.5 ms at 60 / 120 Hz with a 4 ms exposure -- or the
+    frame's light goes out after its pattern, before the next frame is read, for the exposure
+    after that (runtime.light_after): the frame read, processed (``PROCESSING_BUDGET_S``) and its
+    pattern flipped a refresh before that light's flip: lag <= 2 frame periods - (3 refreshes +
+    exposure) / 2 - margin - budget, 12.8 ms there."""
     period, refresh = 1.0 / source.camera_fps, 1.0 / pattern.refresh_hz
-    exposure = source.camera_exposure_ms / 1e3
-    return pattern.display_lag_ms / 1e3 < period - (refresh + exposure) / 2 - READ_MARGIN_S
+    exposure, lag = source.camera_exposure_ms / 1e3, pattern.display_lag_ms / 1e3
+    return (lag < period - (refresh + exposure) / 2 - READ_MARGIN_S
+            or lag <= 2 * period - (3 * refresh + exposure) / 2 - READ_MARGIN_S - PROCESSING_BUDGET_S)
 
 
 @dataclass(frozen=True)
@@ -582,9 +594,10 @@ def load_config(path: str | Path | None = None, overrides: dict[str, dict[str, A
                 lock = False
                 sections["source"] = dataclasses.replace(sections["source"], camera_lock=False)
                 notes = (f"pattern.display_lag_ms {sections['pattern'].display_lag_ms:g}: no exposure light can "
-                         "reach the next exposure (the lag must be below the frame period less half a refresh and "
-                         "half the exposure, less 1 ms), so strategy auto takes dim holes without the camera lock "
-                         "(in the twin at a 12 ms lag: 0.871 removed against locked pulse's 0.780)",)
+                         "reach each exposure (the lag must be at most two frame periods less one and a half "
+                         "refreshes, half the exposure, 1 ms and 5 ms of processing: 12.8 ms at 60 / 120 Hz with "
+                         "4 ms exposures), so strategy auto takes dim holes without the camera lock (in the twin "
+                         "at a 14 ms lag: 0.906 removed against locked pulse's 0.832, every other frame)",)
         light = dataclasses.replace(light, strategy=(LOCKED_STRATEGY if lock else HARDWARE_STRATEGY) if camera
                                     else "none")
         if camera:

@@ -396,6 +396,9 @@ class _Pipeline:
         # frame was processed (runtime.light_ahead); its pattern is then light from pattern_on_ns
         self.ahead = False
         self.pattern_on_ns: int | None = None
+        # locked, a display lagging more: this frame's light goes out after its pattern, for the
+        # exposure after the next (runtime.light_after)
+        self.post = False
         self._made: _Exposed | None = None  # the light the last frame made, for the exposure it reaches
         self._flashed: _Exposed | None = None  # the light that went out ahead, for the next exposure
         self._ahead_buffers: list[np.ndarray] = []  # (two: the next one goes out before it is judged)
@@ -641,7 +644,7 @@ class _Pipeline:
             if self._dark is None or self._dark.shape != shown.shape:
                 self._dark = np.zeros_like(shown)
             shown = self._dark
-        if self.locked and not self.ahead:  # the next exposure's light at its flip; the pattern once it
+        if self.locked and not (self.ahead or self.post):  # the next exposure's light at its flip; the pattern once it
             exposed = self._expose(rec, shown)  # has been on (after_exposure)
             light = self.flash_image if self.flash_image is not None else exposed
             if not self.light_on:
@@ -651,7 +654,7 @@ class _Pipeline:
                     output.show(shown, rec.frame, rec.detections)
             for output in self.outputs:
                 output.flash(light, self.lit_frame)
-        else:  # (ahead: the light went out before the frame was processed)
+        else:  # (ahead: the light went out before the frame was processed; post: it goes out after)
             for output in self.outputs:
                 output.show(shown, rec.frame, rec.detections)
         t_out = clock()
@@ -661,7 +664,7 @@ class _Pipeline:
                 self.learn(rec)
             else:  # the process thread is doing it (it always marks it done)
                 rec.learned.wait()
-        if not self.locked or self.ahead:
+        if not self.locked or self.ahead or self.post:
             exposed = self._expose(rec, shown)
         # the next exposure is taken under this pattern, or its light (its holes, none under a flash)
         unlit = rec.hole_ids if self.light_on and self.flash_image is None else None
@@ -670,6 +673,9 @@ class _Pipeline:
                                      rec.probes if self.light_on else {})
         if self.ahead:  # ... unless the last frame's went out ahead of this one: the next exposure is under it
             made = self._flashed
+        elif self.post:  # ... or none went out for it (the first light after a pattern): under the pattern
+            dark = rec.hole_ids if self.light_on else None
+            made = _Exposed(shown if self.light_on else None, dark, dark, {})
         self.unlit_ids, self.rested_ids = made.unlit_ids, made.rested_ids
         if self.probe is not None:  # mode single: the buffer stays intact until the next frame is processed
             self.shown_probes = made.probes
@@ -921,6 +927,21 @@ def light_ahead(next_flip: float, ready: float, light_by: float, refresh: float)
     return next_flip <= light_by + tolerance and light_by < next_flip + refresh - tolerance and ready > next_flip
 
 
+def light_after(pattern_flip: float, exposure: float, lag: float, next_read: float, refresh: float) -> float | None:
+    """Locked loop, a display lagging past what the light ahead reaches: the flip at which this
+    frame's exposure light goes out after its pattern (at ``pattern_flip``), for the exposure after
+    the next (starting at ``exposure``) -- the last flip whose light, ``lag`` after it, is on by
+    then -- when that flip comes a refresh or more after the pattern's and before the next frame is
+    read (``next_read``): then every frame is still taken, each under the light of the frame two
+    before.  None otherwise (the light ahead, or the frame's own light after it is processed, does).
+    Any one unit of time throughout (ns in run, seconds in the twin)."""
+    tolerance = refresh * 1e-6
+    flip = pattern_flip + math.floor((exposure - lag - pattern_flip) / refresh + 1e-6) * refresh
+    if flip >= pattern_flip + refresh - tolerance and flip < next_read:
+        return flip
+    return None
+
+
 def _run_single(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: Any) -> None:
     """One thread: pace, capture, process, show -- the report's design.
 
@@ -972,9 +993,13 @@ def _run_locked(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: 
     the flip right after the frame is read, before it can be processed: the last frame's light
     goes out there first (:func:`light_ahead`, decided by the processing time measured so far),
     then the frame is processed and its pattern follows -- every frame is still taken, under a
-    light a frame older.  Frames whose exposure began before the light was on are skipped and
-    counted as dropped (at most ``MAX_STALE_FRAMES`` in a row: until the lock holds, or when a
-    frame took too long).
+    light a frame older.  A projector lagging more (12 ms at 60 / 120 Hz) needs it before the
+    frame is read: each frame's light goes out right after its pattern, for the exposure after the
+    next (:func:`light_after`), the next frame's pattern replacing it a refresh later -- every
+    frame is taken, under the light of the frame two before (the first time, under the pattern:
+    taken all the same, for the chain to start).  Frames whose exposure began before the light was
+    on are skipped and counted as dropped (at most ``MAX_STALE_FRAMES`` in a row: until the lock
+    holds, or when a frame took too long).
     """
     from .lock import PhaseLock
 
@@ -991,6 +1016,7 @@ def _run_locked(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: 
     lit_ns = 0  # when the last exposure light went on (its flip + the lag); the full lamp until the first
     made, last_start = 0, 0  # the camera's frames since the first read, by their exposures' starts
     busy_ns = 0  # the longest of the last frames' processing (read to pattern drawn), for light_ahead
+    posted, posted_lit = False, 0  # a light went out after the last frame's pattern, on from posted_lit
     recent: collections.deque[int] = collections.deque(maxlen=8)
     while True:
         if _finished(summary, stop, rc):
@@ -1010,19 +1036,29 @@ def _run_locked(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: 
             summary.dropped += stale  # (skipped as stale just before)
             return
         started = display.clock()
-        pipeline.ahead, pipeline.pattern_on_ns = False, None
+        pipeline.ahead, pipeline.pattern_on_ns, pipeline.post = False, None, False
         if lock.locked and display.presented_ns:
             now_flip = display.next_flip_ns(refresh_ns)
             ready = started + busy_ns + FLIP_MARGIN_NS
-            if light_ahead(now_flip, ready, frame.exposure_start_ns + period_ns - lag_ns, refresh_ns):
+            flips = max(0, -(-(ready - now_flip) // refresh_ns))  # the pattern: the first flip after ready
+            pattern_flip = now_flip + flips * refresh_ns
+            if posted:  # the next exposure's light went out after the last frame's pattern
+                pipeline.ahead = True
+                pipeline.pattern_on_ns = pattern_flip + lag_ns
+            elif light_ahead(now_flip, ready, frame.exposure_start_ns + period_ns - lag_ns, refresh_ns):
                 pipeline.flash_ahead(frame.index + 1)
                 pipeline.ahead = True
-                flips = -(-(ready - now_flip) // refresh_ns)  # the pattern: the first flip after ready
-                pipeline.pattern_on_ns = now_flip + flips * refresh_ns + lag_ns
+                pipeline.pattern_on_ns = now_flip + max(flips, 1) * refresh_ns + lag_ns
+            # this frame's light after its pattern, for the exposure after the next (a lag past the light ahead)
+            pipeline.post = light_after(pattern_flip, frame.exposure_start_ns + 2 * period_ns, lag_ns,
+                                        frame.exposure_start_ns + period_ns + exposure_ns + FLIP_MARGIN_NS,
+                                        refresh_ns) is not None and not (pipeline.ahead and not posted)
+            if pipeline.post:
+                pipeline.pattern_on_ns = pattern_flip + lag_ns
         rec = pipeline.process(frame, t0, t1)
         recent.append(display.clock() - started)
         busy_ns = max(recent)
-        if not pipeline.ahead:
+        if not (pipeline.ahead or pipeline.post):
             # the light's flip: the last before the first exposure still to come that it can reach
             # (once the lock holds; until then, the next flip)
             reach = display.next_flip_ns(refresh_ns) + lag_ns
@@ -1036,9 +1072,24 @@ def _run_locked(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: 
         if pipeline.emit(rec, stale):
             summary.stop_reason = "stopped from the window (e)"
             return
-        if not pipeline.ahead:
+        if not (pipeline.ahead or pipeline.post):
             pipeline.after_exposure(rec)
-        lit_ns = display.presented_ns + lag_ns  # (kms waited for the light's flip before the pattern's)
+        if pipeline.post or posted:
+            # the next frame: under the light put out after the last frame's pattern; the first
+            # time, under this pattern (taken all the same: skipped, it would break the chain)
+            lit_ns = posted_lit if posted else 0
+        else:
+            lit_ns = display.presented_ns + lag_ns  # (kms waited for the light's flip before the pattern's)
+        posted = False
+        if pipeline.post:
+            # (the pattern's flip as it came: a frame processed later than foreseen may miss it)
+            flip = light_after(display.next_flip_ns(refresh_ns) - refresh_ns, frame.exposure_start_ns + 2 * period_ns,
+                               lag_ns, frame.exposure_start_ns + period_ns + exposure_ns + FLIP_MARGIN_NS, refresh_ns)
+            if flip is not None:
+                while display.next_flip_ns(refresh_ns) < flip - refresh_ns // 2:  # spare flips: the pattern
+                    pipeline.after_exposure(rec)
+                pipeline.flash_ahead(frame.index + 2)
+                posted, posted_lit = True, int(flip) + lag_ns
         # the camera's frames between two read (gone while the loop was busy, or skipped as stale)
         if last_start:
             made += max(1, round((frame.exposure_start_ns - last_start) / period_ns))
@@ -1046,10 +1097,10 @@ def _run_locked(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: 
         if made >= 60 and summary.frames <= 0.6 * made and not summary.notes:
             summary.notes.append(
                 f"the locked loop processed {summary.frames} of the camera's {made + 1} frames: no exposure light "
-                "could reach the next exposure, not even the last frame's put out ahead (the display lag more "
-                "than a refresh, or processing too long for the frame period); in the twin at a 12 ms lag pulse "
-                "so removed 0.780 against dim holes' 0.871 -- --strategy dim, or a camera frame period of "
-                "more refreshes")
+                "could reach the next exposure, not even the last frame's put out ahead nor this frame's after "
+                "its pattern (the display lag too long, or processing too long for the frame period); in the "
+                "twin at a 14 ms lag pulse so removed 0.832 against dim holes' 0.906 -- --strategy dim, or a "
+                "camera frame period of more refreshes")
 
 
 def _run_threads(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: Any) -> None:

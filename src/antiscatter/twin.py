@@ -154,15 +154,20 @@ class _LockedRun(_FreeRunning):
     most ``MAX_STALE_FRAMES``).  When the frame cannot be ready in time for the next exposure's
     flip and that flip is the next one (a display lagging about a refresh), the last frame's light
     goes out there before the frame is processed -- the light ahead (``runtime.light_ahead``) --
-    and the frame's pattern at the flip after.  ``period``: the camera's frame period.
+    and the frame's pattern at the flip after.  When that flip comes before the frame is even read
+    (a longer lag), each frame's light goes out after its pattern, for the exposure after the next
+    (``runtime.light_after``), until the next frame's pattern.  ``period``, ``exposure``: the
+    camera's frame period and exposure time.
     """
 
-    def __init__(self, refresh: float, latency: float, lag: float, period: float) -> None:
+    def __init__(self, refresh: float, latency: float, lag: float, period: float, exposure: float) -> None:
         super().__init__(refresh, latency, lag=lag)
-        self.period = period
+        self.period, self.exposure = period, exposure
         self.events = []  # the full lamp until the first pattern
         self.lit = 0.0  # when the last exposure light is on the scene
         self.pending = 0.0  # when the last flip asked for lands
+        self.posted = False  # the last frame's light went out after its pattern (runtime.light_after) ...
+        self.posted_lit = 0.0  # ... on the scene from then
 
     def take(self, start: float, end: float) -> bool:
         if end <= self.handed + 1e-12:
@@ -173,18 +178,32 @@ class _LockedRun(_FreeRunning):
         return True
 
     def processed(self, start: float, end: float) -> float:
-        from .runtime import FLIP_MARGIN_NS, light_ahead
+        from .runtime import FLIP_MARGIN_NS, light_after, light_ahead
 
         r = self.refresh
         margin = FLIP_MARGIN_NS / 1e9
         coming = start + self.period
         now = _flip_lands(max(end, self.pending), r)  # what a flip asked for on reading lands at
+        posted, self.posted = self.posted, False
+        first = _flip_lands(max(end + self.latency, self.pending), r)  # what a flip asked for now lands at
+        after = light_after(first, coming + self.period, self.lag, coming + self.exposure + margin, r)
+        if posted or (after is not None and not light_ahead(now, end + self.latency + margin, coming - self.lag, r)):
+            # the next exposure's light went out after the last frame's pattern (or, the first time,
+            # none did: the next frame is taken under this pattern); this frame's pattern, then its
+            # light at the flip that covers the exposure after the next
+            self.events.append((first + self.lag, False))
+            self.lit = self.posted_lit if posted else 0.0
+            self.handed, self.pending, self.stale = first, first, 0
+            if after is not None:
+                self.events.append((after + self.lag, True))
+                self.posted, self.posted_lit, self.pending = True, after + self.lag, after
+                self.handed = after - r  # (run waits for the flip before the light's to put it out)
+            return first + self.lag
         if light_ahead(now, end + self.latency + margin, coming - self.lag, r):
             pattern = _flip_lands(max(end + self.latency, now), r)  # after the light's flip
             self.events += [(now + self.lag, True), (pattern + self.lag, False)]
             self.lit, self.pending, self.handed, self.stale = now + self.lag, pattern, now, 0
             return pattern + self.lag
-        first = _flip_lands(max(end + self.latency, self.pending), r)  # what a flip asked for now lands at
         while coming < first + self.lag - 1e-9:
             coming += self.period
         lift = max(first, math.floor((coming - self.lag) / r + 1e-9) * r)  # the last flip whose light covers it
@@ -226,11 +245,14 @@ class TwinGeometry:
     and ``flash`` the loop is then ``run``'s on such a camera (:class:`_FreeRunning`).
     camera_lock: with ``pulse`` and ``flash``, the loop ``run --camera-lock`` runs once its lock
     holds (:class:`_LockedRun`) instead of the locked ideal: one thread, so a frame's light must be
-    ready for the next exposure, or go out a frame ahead (a lag of about a refresh), or the loop
-    reads every other frame.
+    ready for the next exposure, or go out a frame ahead (a lag of about a refresh), or after its
+    pattern for the exposure after the next (a longer one), or the loop reads every other frame.
     display_lag_s: how long after a flip its image is light on the scene (a DLP projector that
     formats one frame while it shows the last lags a refresh); every pattern, pulse and flash is on
-    that much later.  With the locked ideal the camera is taken to be triggered by the light.
+    that much later.  With the locked ideal the camera is taken to be triggered by the light.  With
+    a locked camera (not ``camera_phase``) the refreshes of light are counted from the flips plus
+    the lag; on a free-running one from the flips, a lag that is not whole refreshes putting each
+    light in the refresh after.
 
     projector_aperture_m: the projector lens's aperture diameter; 0 (default) is the pinhole
     projector, sharp at every depth.  Above 0 the pattern is sharp only at ``projector_focus_m``
@@ -580,14 +602,19 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
     # or as run gives it on a free-running camera
     exposing = run.strategy in ("pulse", "flash") and detector is not None
     lag = geometry.display_lag_s
-    # the exposure's start after its frame's first refresh: locked, the middle of a refresh's light
-    offset = ((geometry.camera_phase or 0.0) * sub_s if not geometry.camera_lock else
-              ((sub_s - geometry.exposure_s) / 2 + lag) % sub_s)
+    # a locked camera: the light changes ``lag`` after each flip, so the refreshes of light are
+    # taken from then (from the flips, a lag that is not whole refreshes moved every light into the
+    # refresh after it: at 12 ms the light as run missed every exposure, dim holes came late)
+    phase = lag % sub_s if geometry.camera_phase is None else 0.0
+    # the exposure's start after its frame's first refresh of light: triggered by it (the locked
+    # ideal), in its middle (run's lock), or as the free-running camera's phase falls
+    offset = (geometry.camera_phase * sub_s if geometry.camera_phase is not None else
+              phase + (sub_s - geometry.exposure_s) / 2 if geometry.camera_lock else phase)
     free = None
     if exposing and geometry.camera_phase is not None:
         free = _FreeRunning(sub_s, latency, lag=lag)
     elif exposing and geometry.camera_lock:
-        free = _LockedRun(sub_s, latency, lag, frame_s)
+        free = _LockedRun(sub_s, latency, lag, frame_s, geometry.exposure_s)
     lifted = False
     processed = 0
     for k in range(frames):
@@ -608,7 +635,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
         frame_scene = 0.0
         exposure_on, exposure_bg = np.zeros(len(u)), 0.0  # the light the exposure gathers
         for j in range(sub_per_frame):
-            ts = t0 + j * sub_s
+            ts = t0 + phase + j * sub_s
             while queue and queue[0][0] <= ts + 1e-12:
                 displayed = queue.pop(0)[1]
                 lifted = False  # a new pattern replaces the exposure's light
@@ -616,7 +643,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
             shown = _shown(displayed, lifted)
             # the scene's state is the frame's mid-exposure; particles keep moving through the
             # frame period, so each refresh lights them where they are in its middle
-            q = scene.particles(ahead_s=j * sub_s + sub_s / 2 - offset - geometry.exposure_s / 2)
+            q = scene.particles(ahead_s=phase + j * sub_s + sub_s / 2 - offset - geometry.exposure_s / 2)
             su, sv = geometry.to_projector(q["X"], q["Y"], q["Z"])
             blur = geometry.defocus_px(q["Z"]) if geometry.projector_aperture_m else None
             particle_light = _mean_over_discs(shown, su, sv, np.maximum(rp, 0.5), blur)

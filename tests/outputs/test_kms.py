@@ -209,7 +209,7 @@ class RegisteredFramebuffer(DumbFramebuffer):
         return raw[:, : self.width * 4].reshape(self.height, self.width, 4)
 
 
-@pytest.mark.parametrize("lag_ns, every", [(0, 1), (REFRESH_NS, 1), (12_000_000, 2)])
+@pytest.mark.parametrize("lag_ns, every", [(0, 1), (REFRESH_NS, 1), (12_000_000, 1), (14_000_000, 2)])
 def test_the_camera_locked_to_the_projector_takes_its_exposures_under_the_lifted_holes(tmp_path, monkeypatch,
                                                                                       lag_ns, every):
     # a free-running 60 Hz camera, its clock 50 ppm fast, its exposures 5.1 ms into a refresh at
@@ -218,7 +218,10 @@ def test_the_camera_locked_to_the_projector_takes_its_exposures_under_the_lifted
     # of a refresh's light and shows each lifted pattern at the flip whose light covers the next
     # exposure it can reach: with no display lag that is every frame, taken under it -- the twin's
     # locked camera; with a projector that lags a refresh (a DLP formatting one frame while it
-    # shows the last), the light cannot reach the next exposure, and every other frame is.
+    # shows the last) the last frame's light goes out ahead, at the flip after the read; lagging
+    # 12 ms, each frame's light goes out after its pattern, before the next frame is read, for the
+    # exposure after that -- every frame is taken, each under the light it was told; lagging 14 ms
+    # the pattern and that light no longer both fit, and every other frame is.
     import collections
     import csv
     import io

@@ -299,11 +299,13 @@ def _loop_rows(jobs: list[tuple], seeds: int, log: Callable[[str], None],
 #: display lag in refreshes) -- the co-located goal's strategies on a camera locked to the
 #: projector (the ideal), on a free-running one (``free``: scene k's exposures FREE_PHASES[k % 4]
 #: of a refresh in) and locked as ``run --camera-lock`` runs it (``as run``), without and with a
-#: projector lagging a refresh; the 12 cm goal's, and the prediction's gain at 20 ms
+#: projector lagging a refresh, 12 ms (the light after the pattern) and 14 ms (past its reach:
+#: every other frame); the 12 cm goal's, and the prediction's gain at 20 ms
 LONG_RUNS = ((0.0, 5.0, "calibrated", "dim", True, "locked", 0), (0.0, 5.0, "calibrated", "pulse", True, "locked", 0),
              (0.0, 5.0, "calibrated", "dim", True, "free", 0), (0.0, 5.0, "calibrated", "pulse", True, "free", 0),
              (0.0, 5.0, "calibrated", "pulse", True, "as run", 0),
              (0.0, 5.0, "calibrated", "dim", True, "locked", 1), (0.0, 5.0, "calibrated", "pulse", True, "as run", 1),
+             (0.0, 5.0, "calibrated", "pulse", True, "as run", 1.44), (0.0, 5.0, "calibrated", "pulse", True, "as run", 1.68),
              (0.12, 5.0, "probe", "dim", True, "locked", 0), (0.12, 5.0, "probe", "pulse", True, "locked", 0),
              (0.12, 5.0, "probe", "pulse", True, "as run", 1),
              (0.12, 20.0, "probe", "pulse", False, "locked", 0), (0.12, 20.0, "probe", "pulse", True, "locked", 0))
