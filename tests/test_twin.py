@@ -684,3 +684,57 @@ def test_pulsed_holes_as_run_locks_the_camera(lag, read, removed):
         assert [f["removed"] for f in run()["series"]] == [f["removed"] for f in out["series"]]
     with pytest.raises(ValueError, match="camera_lock: the locked camera's exposures sit in the middle"):
         TwinGeometry(camera_lock=True, camera_phase=0.5)
+
+
+def test_the_twins_camera_rate_and_field_of_view_are_the_scenes():
+    # the twin computes each particle's light from its geometry and the detector sees the scene's
+    # rendering: both must project a particle to the same pixel and move it a camera frame a step
+    from antiscatter.twin import twin_scene
+
+    geometry = TwinGeometry(camera_size=(320, 240), camera_hz=30.0, projector_hz=120.0, hfov_deg=50.0)
+    scene = twin_scene(geometry, "mixed", 3)
+    assert scene.config.fps == 30.0 and scene.config.hfov_deg == 50.0
+    scene.render()
+    truth = scene.truth()
+    p = scene.particles()
+    u, v = geometry.to_camera(p["X"], p["Y"], p["Z"])
+    ids = list(p["ids"])
+    at = [ids.index(i) for i in truth.ids]
+    assert np.allclose(truth.centres, np.column_stack([u[at], v[at]]), atol=1e-6)
+    later = scene.particles(ahead_s=1 / 30)
+    scene.step()
+    now = scene.particles()
+    kept = np.isin(now["ids"], later["ids"])
+    assert kept.sum() > 10
+    same = [list(later["ids"]).index(i) for i in now["ids"][kept]]
+    assert np.allclose(now["X"][kept], later["X"][same]) and np.allclose(now["Y"][kept], later["Y"][same])
+    # the preset's own camera (63 degrees) would put them elsewhere
+    default = TwinGeometry(camera_size=(320, 240))
+    u63, _ = default.to_camera(p["X"], p["Y"], p["Z"])
+    assert not np.allclose(truth.centres[:, 0], u63[at], atol=1.0)
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("camera_hz", 0.0, "camera_hz: got 0.0, allowed a number > 0"),
+    ("hfov_deg", 180.0, "hfov_deg: got 180.0, allowed 0 < hfov < 180 degrees"),
+    ("throw_ratio", -1.0, "throw_ratio: got -1.0, allowed a number > 0"),
+    ("background_m", float("nan"), "background_m: got nan, allowed a number > 0"),
+])
+def test_bad_twin_geometry_is_refused(key, value, message):
+    with pytest.raises(ValueError, match=message):
+        TwinGeometry(**{key: value})
+
+
+def test_twin_command_with_its_own_camera_and_projector(cli):
+    out = cli("twin", "--frames", "6", "--size", "200x150", "--preset", "bubbles", "--baseline-m", "0",
+              "--camera-hz", "40", "--hfov-deg", "50", "--throw-ratio", "1.5", "--background-m", "2.5", "--json")
+    assert out.code == 0, out.err
+    got = json.loads(out.out)
+    assert (got["camera_hz"], got["hfov_deg"], got["throw_ratio"], got["background_m"]) == (40, 50, 1.5, 2.5)
+    assert {r["frames_processed"] for r in got["runs"] if r["detector"]} == {6}
+    assert all(0 <= r["backscatter_removed"] <= 1 and 0 < r["scene_light_kept"] <= 1 for r in got["runs"])
+    bad = cli("twin", "--frames", "2", "--camera-hz", "50")
+    assert bad.code == 2 and "projector_hz: got 120.0, allowed a whole multiple of camera_hz (50.0)" in bad.err
+    assert "Traceback" not in bad.err and len(bad.err.strip().splitlines()) == 1
+    bad = cli("twin", "--frames", "2", "--hfov-deg", "0")
+    assert bad.code == 2 and "hfov_deg: got 0.0, allowed 0 < hfov < 180 degrees" in bad.err

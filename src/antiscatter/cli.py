@@ -290,6 +290,14 @@ def build_parser() -> argparse.ArgumentParser:
                     "0 = co-located through a beamsplitter)")
     tw.add_argument("--latency-ms", type=float, default=5.0, help="processing latency for all runs (default 5)")
     tw.add_argument("--projector-hz", type=float, default=120.0, help="projector refresh (default 120)")
+    tw.add_argument("--camera-hz", type=float, default=60.0, help="camera frame rate; the projector's refresh a "
+                    "whole multiple of it (default 60)")
+    tw.add_argument("--hfov-deg", type=float, default=63.0, help="the camera's horizontal field of view, degrees "
+                    "(default 63: the IMX296 behind a 6 mm lens)")
+    tw.add_argument("--throw-ratio", type=float, default=1.2, help="the projector's throw ratio, distance / image "
+                    "width (default 1.2)")
+    tw.add_argument("--background-m", type=float, default=3.0, help="distance of the background surface, m "
+                    "(default 3)")
     tw.add_argument("--exposure-ms", type=float, help="camera exposure (default 4, or one projector refresh if "
                     "shorter); the light a frame gathers scales with it")
     tw.add_argument("--camera-phase", type=float, metavar="F", help="a free-running camera, each exposure starting "
@@ -769,7 +777,8 @@ def _twin(args: argparse.Namespace) -> int:
         exposure = (args.exposure_ms / 1e3 if args.exposure_ms is not None
                     else min(0.004, 1.0 / args.projector_hz) if args.projector_hz > 0 else 0.004)
         geometry = TwinGeometry(camera_size=size, projector_size=projector, baseline_m=args.baseline_m,
-                                projector_hz=args.projector_hz, exposure_s=exposure,
+                                projector_hz=args.projector_hz, camera_hz=args.camera_hz, exposure_s=exposure,
+                                hfov_deg=args.hfov_deg, throw_ratio=args.throw_ratio, background_m=args.background_m,
                                 projector_aperture_m=args.projector_aperture_mm / 1e3,
                                 projector_focus_m=args.projector_focus_m, camera_phase=args.camera_phase,
                                 camera_lock=args.camera_lock, display_lag_s=args.display_lag_ms / 1e3)
@@ -818,7 +827,10 @@ def _twin(args: argparse.Namespace) -> int:
             print(f"wrote {args.plot}")
     if args.json:
         print(json.dumps({"preset": args.preset, "frames": args.frames, "baseline_m": args.baseline_m,
-                          "latency_ms": args.latency_ms, "camera_phase": args.camera_phase,
+                          "latency_ms": args.latency_ms, "camera_hz": geometry.camera_hz,
+                          "projector_hz": geometry.projector_hz, "hfov_deg": geometry.hfov_deg,
+                          "throw_ratio": geometry.throw_ratio, "background_m": geometry.background_m,
+                          "camera_phase": args.camera_phase,
                           "camera_lock": args.camera_lock, "display_lag_ms": args.display_lag_ms,
                           "projector_aperture_mm": args.projector_aperture_mm,
                           "projector_focus_m": args.projector_focus_m or geometry.background_m,

@@ -285,6 +285,12 @@ class TwinGeometry:
                 raise ValueError(f"{key}: got {value}, allowed a number >= 0")
         if not (math.isfinite(self.baseline_m) and self.baseline_m >= 0):
             raise ValueError(f"baseline_m: got {self.baseline_m}, allowed a number >= 0")
+        for key in ("camera_hz", "projector_hz", "throw_ratio", "background_m"):
+            value = getattr(self, key)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{key}: got {value}, allowed a number > 0")
+        if not (math.isfinite(self.hfov_deg) and 0 < self.hfov_deg < 180):
+            raise ValueError(f"hfov_deg: got {self.hfov_deg}, allowed 0 < hfov < 180 degrees")
         ratio = self.projector_hz / self.camera_hz
         if abs(ratio - round(ratio)) > 1e-6 or ratio < 1:
             raise ValueError(f"projector_hz: got {self.projector_hz}, allowed a whole multiple of camera_hz "
@@ -465,6 +471,23 @@ def _holes_pattern(holes: Detections, run: TwinRun, *, size: tuple[int, int], ma
     return light
 
 
+def twin_scene(geometry: "TwinGeometry", preset: str, seed: int, current: float | None = None) -> Any:
+    """The simulator's scene of ``preset`` as the twin's camera sees it: its frame size, field of
+    view and frame rate (particles move a frame period of the twin's camera each step); ``current``
+    (m/s across the view) replaces the preset's water current."""
+    from dataclasses import replace
+
+    from .simulate.scene import RealisticScene
+
+    scene = make_scene(preset, rng=np.random.default_rng(seed), size=geometry.camera_size,
+                       current=None if current is None else (current, 0.0))
+    config = getattr(scene, "config", None)
+    if isinstance(scene, RealisticScene) and (config.fps, config.hfov_deg) != (geometry.camera_hz, geometry.hfov_deg):
+        scene = RealisticScene(replace(config, fps=geometry.camera_hz, hfov_deg=geometry.hfov_deg),
+                               size=geometry.camera_size, rng=np.random.default_rng(seed))
+    return scene
+
+
 def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), preset: str = "mixed",
                   frames: int = 90, seed: int = 1, latency_ms: float = 5.0, scene: Any = None,
                   calibration: Any = None) -> dict[str, Any]:
@@ -475,7 +498,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
         ``range`` mappings; None = the twin's exact geometry.
     """
     if scene is None:
-        scene = make_scene(preset, rng=np.random.default_rng(seed), size=geometry.camera_size)
+        scene = twin_scene(geometry, preset, seed)
     detector = make_detector(run.detector) if run.detector else None
     tracker = None
     if run.strategy == "coast" or run.predict or run.mapping == "probe":
@@ -785,7 +808,7 @@ def plot_curves(path: str, *, geometry: TwinGeometry, preset: str = "mixed", fra
             "probe+pulse+predict": TwinRun("contrast", "probe", "pulse", True)}
     runs = {name: _replace(run, dim_level=dim_level, flash_level=flash_level) for name, run in runs.items()}
     def drifting(current: float) -> Any:  # the same scene (same seed) in another current
-        return make_scene(preset, rng=np.random.default_rng(seed), size=geometry.camera_size, current=(current, 0.0))
+        return twin_scene(geometry, preset, seed, current)
 
     speeds = [particle_speed(drifting(c), geometry) for c in currents_m_s]
     curves: dict[str, Any] = {"latency_ms": list(latencies_ms), "baseline_m": list(baselines_m),
