@@ -100,7 +100,7 @@ class PhaseLock:
         return self.error_ns is not None and abs(self.error_ns) <= LOCKED_WITHIN * self.refresh_ns
 
 
-def display_lag(source: Any, display: Any, *, refresh_ns: int, trials: int = 12, settle: int = 3) -> dict:
+def display_lag(source: Any, display: Any, *, refresh_ns: int, trials: int = 12, settle: int = 6) -> dict:
     """The projector's lag from a flip to its light on the scene, measured with the camera looking
     at what the projector lights (a fixed exposure, best near the frame period: then almost every
     onset falls inside one; ``display``: output ``kms``).
@@ -112,6 +112,9 @@ def display_lag(source: Any, display: Any, *, refresh_ns: int, trials: int = 12,
     is the onset less the flip's time; a trial whose onset fell between two exposures tells
     nothing and is left out.  Returns the median over the trials that told (ms), their spread
     and values.  A view the white does not brighten, or no onset inside an exposure, is an error.
+    Lags up to about ``settle`` frame periods less the exposure and a period are measured (6:
+    75 ms at 60 Hz with 15 ms exposures, simulated; with 3 it was 25 ms -- a longer lag left the
+    black's level lit by the trial before's white, and a projector's lag can be several frames).
     """
     width, height = display.size
     black, white = np.zeros((height, width), np.uint8), np.full((height, width), 255, np.uint8)
