@@ -399,6 +399,9 @@ class _Pipeline:
         # locked, a display lagging more: this frame's light goes out after its pattern, for the
         # exposure after the next (runtime.light_after)
         self.post = False
+        self._pattern_before: _Exposed | None = None  # locked: the pattern the last frame showed
+        self._pattern_copies = ([np.empty((config.pattern.height, config.pattern.width), np.uint8) for _ in range(2)]
+                                if self.locked else [])
         self._made: _Exposed | None = None  # the light the last frame made, for the exposure it reaches
         self._flashed: _Exposed | None = None  # the light that went out ahead, for the next exposure
         self._ahead_buffers: list[np.ndarray] = []  # (two: the next one goes out before it is judged)
@@ -673,9 +676,13 @@ class _Pipeline:
                                      rec.probes if self.light_on else {})
         if self.ahead:  # ... unless the last frame's went out ahead of this one: the next exposure is under it
             made = self._flashed
-        elif self.post:  # ... or none went out for it (the first light after a pattern): under the pattern
-            dark = rec.hole_ids if self.light_on else None
-            made = _Exposed(shown if self.light_on else None, dark, dark, {})
+        elif self.post:  # ... or none went out for it (the first light after a pattern): it is under the
+            made = self._pattern_before or _Exposed(self.full_image)  # pattern shown before this one
+        if self.locked:  # (kept for that: mode single draws every pattern into one buffer)
+            self._pattern_copies.reverse()  # (two: the last is judged by until the next frame is processed)
+            np.copyto(self._pattern_copies[0], shown)
+            dark = rec.hole_ids if self.light_on else None  # between exposures its holes are dark
+            self._pattern_before = _Exposed(self._pattern_copies[0] if self.light_on else None, dark, dark, {})
         self.unlit_ids, self.rested_ids = made.unlit_ids, made.rested_ids
         if self.probe is not None:  # mode single: the buffer stays intact until the next frame is processed
             self.shown_probes = made.probes
@@ -1049,12 +1056,17 @@ def _run_locked(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: 
                 pipeline.flash_ahead(frame.index + 1)
                 pipeline.ahead = True
                 pipeline.pattern_on_ns = now_flip + max(flips, 1) * refresh_ns + lag_ns
-            # this frame's light after its pattern, for the exposure after the next (a lag past the light ahead)
-            pipeline.post = light_after(pattern_flip, frame.exposure_start_ns + 2 * period_ns, lag_ns,
+            # this frame's light after its pattern, for the exposure after the next (a lag past the
+            # light ahead), foreseen by the typical processing time: a frame slower than that misses
+            # one light (the next but one frame is then taken under the pattern), where the longest
+            # of the last 8 would leave the loop reading every other frame for 8 frames after it
+            typical = started + sorted(recent)[len(recent) // 2] + FLIP_MARGIN_NS if recent else ready
+            typical_flip = now_flip + max(0, -(-(typical - now_flip) // refresh_ns)) * refresh_ns
+            pipeline.post = light_after(typical_flip, frame.exposure_start_ns + 2 * period_ns, lag_ns,
                                         frame.exposure_start_ns + period_ns + exposure_ns + FLIP_MARGIN_NS,
                                         refresh_ns) is not None and not (pipeline.ahead and not posted)
             if pipeline.post:
-                pipeline.pattern_on_ns = pattern_flip + lag_ns
+                pipeline.pattern_on_ns = typical_flip + lag_ns
         rec = pipeline.process(frame, t0, t1)
         recent.append(display.clock() - started)
         busy_ns = max(recent)

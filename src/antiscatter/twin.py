@@ -168,6 +168,7 @@ class _LockedRun(_FreeRunning):
         self.pending = 0.0  # when the last flip asked for lands
         self.posted = False  # the last frame's light went out after its pattern (runtime.light_after) ...
         self.posted_lit = 0.0  # ... on the scene from then
+        self.under_pattern = False  # the next frame taken is under the pattern (the first such light to come)
 
     def take(self, start: float, end: float) -> bool:
         if end <= self.handed + 1e-12:
@@ -193,12 +194,14 @@ class _LockedRun(_FreeRunning):
             # light at the flip that covers the exposure after the next
             self.events.append((first + self.lag, False))
             self.lit = self.posted_lit if posted else 0.0
+            self.under_pattern = not posted
             self.handed, self.pending, self.stale = first, first, 0
             if after is not None:
                 self.events.append((after + self.lag, True))
                 self.posted, self.posted_lit, self.pending = True, after + self.lag, after
                 self.handed = after - r  # (run waits for the flip before the light's to put it out)
             return first + self.lag
+        self.under_pattern = False
         if light_ahead(now, end + self.latency + margin, coming - self.lag, r):
             pattern = _flip_lands(max(end + self.latency, now), r)  # after the light's flip
             self.events += [(now + self.lag, True), (pattern + self.lag, False)]
@@ -694,14 +697,17 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
             processed += 1
             # what the system believes the exposure was taken under (free-running, with the
             # exposure's light: that light, whether or not it was on all through)
-            believed = shown if lifted or not exposing else _shown(displayed, True)
+            # (run's locked loop starting its chain of lights after the pattern: under the pattern)
+            under_pattern = getattr(free, "under_pattern", False)
+            believed = shown if lifted or not exposing or under_pattern else _shown(displayed, True)
             exposure_pattern = believed  # what the probe's verdicts are judged against
-            shown_probes = displayed.probes if isinstance(displayed, _Probing) else {}
+            shown_probes = displayed.probes if isinstance(displayed, _Probing) and not under_pattern else {}
             # the tracks whose holes this exposure is taken under (none under a flash)
             shown_ids = (None if run.strategy == "flash" else
                          Intervals.of(displayed.probes).ids if isinstance(displayed, _Probing) else
                          displayed.ids if isinstance(displayed, _Fixed) else None)
-            shown_rested = levels.rested(shown_ids) if levels is not None and shown_ids is not None else None
+            shown_rested = (shown_ids if under_pattern else  # (between exposures every hole is dark)
+                            levels.rested(shown_ids) if levels is not None and shown_ids is not None else None)
             # the simulator's brightness is that of a 4 ms exposure: a shorter one gathers less
             gather = geometry.exposure_s / REFERENCE_EXPOSURE_S
             exposure_light = (gather * exposure_on, gather * exposure_bg)
