@@ -243,7 +243,7 @@ class TwinGeometry:
 
     camera_phase: None (default) is the camera locked to the projector (its external trigger on
     the projector's vsync): each exposure starts with a refresh.  A number 0..1 is a free-running
-    camera, each exposure starting that share of a refresh after one begins (its clock drifts
+    camera, each exposure starting that share of a refresh after one's light begins (its clock drifts
     against the projector's by parts per million: the phase holds over a run).  With ``pulse``
     and ``flash`` the loop is then ``run``'s on such a camera (:class:`_FreeRunning`).
     camera_lock: with ``pulse`` and ``flash``, the loop ``run --camera-lock`` runs once its lock
@@ -252,10 +252,9 @@ class TwinGeometry:
     pattern for the exposure after the next (a longer one), or the loop reads every other frame.
     display_lag_s: how long after a flip its image is light on the scene (a DLP projector that
     formats one frame while it shows the last lags a refresh); every pattern, pulse and flash is on
-    that much later.  With the locked ideal the camera is taken to be triggered by the light.  With
-    a locked camera (not ``camera_phase``) the refreshes of light are counted from the flips plus
-    the lag; on a free-running one from the flips, a lag that is not whole refreshes putting each
-    light in the refresh after.
+    that much later.  With the locked ideal the camera is taken to be triggered by the light.  The
+    refreshes of light are counted from the flips plus the lag (and a free-running camera's phase
+    from the start of one).
 
     projector_aperture_m: the projector lens's aperture diameter; 0 (default) is the pinhole
     projector, sharp at every depth.  Above 0 the pattern is sharp only at ``projector_focus_m``
@@ -628,14 +627,14 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
     # or as run gives it on a free-running camera
     exposing = run.strategy in ("pulse", "flash") and detector is not None
     lag = geometry.display_lag_s
-    # a locked camera: the light changes ``lag`` after each flip, so the refreshes of light are
-    # taken from then (from the flips, a lag that is not whole refreshes moved every light into the
-    # refresh after it: at 12 ms the light as run missed every exposure, dim holes came late)
-    phase = lag % sub_s if geometry.camera_phase is None else 0.0
+    # the light changes ``lag`` after each flip, so the refreshes of light are taken from then
+    # (from the flips, a lag that is not whole refreshes moved every light into the refresh after
+    # it: at 12 ms the light as run missed every exposure, dim holes came late)
+    phase = lag % sub_s
     # the exposure's start after its frame's first refresh of light: triggered by it (the locked
-    # ideal), in its middle (run's lock), or as the free-running camera's phase falls
-    offset = (geometry.camera_phase * sub_s if geometry.camera_phase is not None else
-              phase + (sub_s - geometry.exposure_s) / 2 if geometry.camera_lock else phase)
+    # ideal), in its middle (run's lock), or the free-running camera's phase into it
+    offset = phase + ((geometry.camera_phase or 0.0) * sub_s if geometry.camera_phase is not None else
+                      (sub_s - geometry.exposure_s) / 2 if geometry.camera_lock else 0.0)
     free = None
     if exposing and geometry.camera_phase is not None:
         free = _FreeRunning(sub_s, latency, lag=lag)
