@@ -303,7 +303,8 @@ def build_parser() -> argparse.ArgumentParser:
     tw.add_argument("--camera-phase", type=float, metavar="F", help="a free-running camera, each exposure starting "
                     "F (0..1) of a projector refresh after one's light begins (a flip plus the display lag); pulse "
                     "and flash then run as run does on it (the frames exposed before the light is on screen "
-                    "skipped, the light on until the frame is read); default: the camera locked to the projector, each exposure at a refresh's start")
+                    "skipped, the light on until the frame is read); default: the camera locked to the projector, "
+                    "each exposure at a refresh's start")
     tw.add_argument("--camera-lock", action="store_true", help="with pulse and flash, the loop run --camera-lock "
                     "runs once its lock holds (one thread: each exposure light at the flip whose light covers the "
                     "next exposure it can reach) instead of the locked ideal")

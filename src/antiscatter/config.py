@@ -300,8 +300,17 @@ def locked_light_reaches(source: "SourceConfig", pattern: "PatternConfig") -> bo
     exposure) / 2 - margin - budget, 12.8 ms there."""
     period, refresh = 1.0 / source.camera_fps, 1.0 / pattern.refresh_hz
     exposure, lag = source.camera_exposure_ms / 1e3, pattern.display_lag_ms / 1e3
-    return (lag < period - (refresh + exposure) / 2 - READ_MARGIN_S
+    return (light_ahead_reaches(source, pattern)
             or lag <= 2 * period - (3 * refresh + exposure) / 2 - READ_MARGIN_S - PROCESSING_BUDGET_S)
+
+
+def light_ahead_reaches(source: "SourceConfig", pattern: "PatternConfig", slack_s: float = 0.0) -> bool:
+    """With the camera locked to the projector, whether a light put out after the frame is read
+    reaches the next exposure (lag < frame period - (refresh + exposure) / 2 - ``READ_MARGIN_S``,
+    less ``slack_s``); when not, each frame's light goes out after its pattern (runtime.light_after)."""
+    period, refresh = 1.0 / source.camera_fps, 1.0 / pattern.refresh_hz
+    exposure = source.camera_exposure_ms / 1e3
+    return pattern.display_lag_ms / 1e3 < period - (refresh + exposure) / 2 - READ_MARGIN_S - slack_s
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ from typing import Any, Callable, Mapping, TextIO
 import cv2
 import numpy as np
 
-from .config import Config, parse_size
+from .config import Config, light_ahead_reaches, parse_size
 from .detection import Detector, check_frame_size, make_detector
 from .detections import Detections
 from .errors import UsageError, check_output_path
@@ -400,8 +400,11 @@ class _Pipeline:
         # exposure after the next (runtime.light_after)
         self.post = False
         self._pattern_before: _Exposed | None = None  # locked: the pattern the last frame showed
+        # (kept only where a light may go out after the pattern: a refresh of slack for the lock's error)
         self._pattern_copies = ([np.empty((config.pattern.height, config.pattern.width), np.uint8) for _ in range(2)]
-                                if self.locked else [])
+                                if self.locked and not light_ahead_reaches(config.source, config.pattern,
+                                                                           slack_s=self.refresh_s)
+                                else [])
         self._made: _Exposed | None = None  # the light the last frame made, for the exposure it reaches
         self._flashed: _Exposed | None = None  # the light that went out ahead, for the next exposure
         self._ahead_buffers: list[np.ndarray] = []  # (two: the next one goes out before it is judged)
@@ -678,7 +681,7 @@ class _Pipeline:
             made = self._flashed
         elif self.post:  # ... or none went out for it (the first light after a pattern): it is under the
             made = self._pattern_before or _Exposed(self.full_image)  # pattern shown before this one
-        if self.locked:  # (kept for that: mode single draws every pattern into one buffer)
+        if self._pattern_copies:  # (kept for that: mode single draws every pattern into one buffer)
             self._pattern_copies.reverse()  # (two: the last is judged by until the next frame is processed)
             np.copyto(self._pattern_copies[0], shown)
             dark = rec.hole_ids if self.light_on else None  # between exposures its holes are dark
@@ -949,6 +952,11 @@ def light_after(pattern_flip: float, exposure: float, lag: float, next_read: flo
     return None
 
 
+def _first_flip(next_flip: int, t: int, refresh: int) -> int:
+    """The first flip at or after ``t`` (ns), the flips ``refresh`` apart from ``next_flip`` on."""
+    return next_flip + max(0, -(-(t - next_flip) // refresh)) * refresh
+
+
 def _run_single(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: Any) -> None:
     """One thread: pace, capture, process, show -- the report's design.
 
@@ -1044,27 +1052,28 @@ def _run_locked(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: 
             return
         started = display.clock()
         pipeline.ahead, pipeline.pattern_on_ns, pipeline.post = False, None, False
+        # the exposure after the next, and when the next frame is read (light_after)
+        after_next = frame.exposure_start_ns + 2 * period_ns
+        next_read = frame.exposure_start_ns + period_ns + exposure_ns + FLIP_MARGIN_NS
         if lock.locked and display.presented_ns:
             now_flip = display.next_flip_ns(refresh_ns)
             ready = started + busy_ns + FLIP_MARGIN_NS
-            flips = max(0, -(-(ready - now_flip) // refresh_ns))  # the pattern: the first flip after ready
-            pattern_flip = now_flip + flips * refresh_ns
+            pattern_flip = _first_flip(now_flip, ready, refresh_ns)  # the pattern's
             if posted:  # the next exposure's light went out after the last frame's pattern
                 pipeline.ahead = True
                 pipeline.pattern_on_ns = pattern_flip + lag_ns
             elif light_ahead(now_flip, ready, frame.exposure_start_ns + period_ns - lag_ns, refresh_ns):
                 pipeline.flash_ahead(frame.index + 1)
                 pipeline.ahead = True
-                pipeline.pattern_on_ns = now_flip + max(flips, 1) * refresh_ns + lag_ns
+                pipeline.pattern_on_ns = pattern_flip + lag_ns  # (after the light's flip: ready > now_flip)
             # this frame's light after its pattern, for the exposure after the next (a lag past the
             # light ahead), foreseen by the typical processing time: a frame slower than that misses
             # one light (the next but one frame is then taken under the pattern), where the longest
             # of the last 8 would leave the loop reading every other frame for 8 frames after it
             typical = started + sorted(recent)[len(recent) // 2] + FLIP_MARGIN_NS if recent else ready
-            typical_flip = now_flip + max(0, -(-(typical - now_flip) // refresh_ns)) * refresh_ns
-            pipeline.post = light_after(typical_flip, frame.exposure_start_ns + 2 * period_ns, lag_ns,
-                                        frame.exposure_start_ns + period_ns + exposure_ns + FLIP_MARGIN_NS,
-                                        refresh_ns) is not None and not (pipeline.ahead and not posted)
+            typical_flip = _first_flip(now_flip, typical, refresh_ns)
+            pipeline.post = (light_after(typical_flip, after_next, lag_ns, next_read, refresh_ns) is not None
+                             and not (pipeline.ahead and not posted))
             if pipeline.post:
                 pipeline.pattern_on_ns = typical_flip + lag_ns
         rec = pipeline.process(frame, t0, t1)
@@ -1095,8 +1104,8 @@ def _run_locked(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: 
         posted = False
         if pipeline.post:
             # (the pattern's flip as it came: a frame processed later than foreseen may miss it)
-            flip = light_after(display.next_flip_ns(refresh_ns) - refresh_ns, frame.exposure_start_ns + 2 * period_ns,
-                               lag_ns, frame.exposure_start_ns + period_ns + exposure_ns + FLIP_MARGIN_NS, refresh_ns)
+            flip = light_after(display.next_flip_ns(refresh_ns) - refresh_ns, after_next, lag_ns, next_read,
+                               refresh_ns)
             if flip is not None:
                 while display.next_flip_ns(refresh_ns) < flip - refresh_ns // 2:  # spare flips: the pattern
                     pipeline.after_exposure(rec)

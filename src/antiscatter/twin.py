@@ -188,7 +188,8 @@ class _LockedRun(_FreeRunning):
         posted, self.posted = self.posted, False
         first = _flip_lands(max(end + self.latency, self.pending), r)  # what a flip asked for now lands at
         after = light_after(first, coming + self.period, self.lag, coming + self.exposure + margin, r)
-        if posted or (after is not None and not light_ahead(now, end + self.latency + margin, coming - self.lag, r)):
+        ahead = not posted and light_ahead(now, end + self.latency + margin, coming - self.lag, r)
+        if posted or (after is not None and not ahead):
             # the next exposure's light went out after the last frame's pattern (or, the first time,
             # none did: the next frame is taken under this pattern); this frame's pattern, then its
             # light at the flip that covers the exposure after the next
@@ -202,7 +203,7 @@ class _LockedRun(_FreeRunning):
                 self.handed = after - r  # (run waits for the flip before the light's to put it out)
             return first + self.lag
         self.under_pattern = False
-        if light_ahead(now, end + self.latency + margin, coming - self.lag, r):
+        if ahead:
             pattern = _flip_lands(max(end + self.latency, now), r)  # after the light's flip
             self.events += [(now + self.lag, True), (pattern + self.lag, False)]
             self.lit, self.pending, self.handed, self.stale = now + self.lag, pattern, now, 0
@@ -483,9 +484,9 @@ def twin_scene(geometry: "TwinGeometry", preset: str, seed: int, current: float 
 
     scene = make_scene(preset, rng=np.random.default_rng(seed), size=geometry.camera_size,
                        current=None if current is None else (current, 0.0))
-    config = getattr(scene, "config", None)
-    if isinstance(scene, RealisticScene) and (config.fps, config.hfov_deg) != (geometry.camera_hz, geometry.hfov_deg):
-        scene = RealisticScene(replace(config, fps=geometry.camera_hz, hfov_deg=geometry.hfov_deg),
+    if isinstance(scene, RealisticScene) and (scene.config.fps, scene.config.hfov_deg) != (geometry.camera_hz,
+                                                                                           geometry.hfov_deg):
+        scene = RealisticScene(replace(scene.config, fps=geometry.camera_hz, hfov_deg=geometry.hfov_deg),
                                size=geometry.camera_size, rng=np.random.default_rng(seed))
     return scene
 
@@ -633,7 +634,7 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
     phase = lag % sub_s
     # the exposure's start after its frame's first refresh of light: triggered by it (the locked
     # ideal), in its middle (run's lock), or the free-running camera's phase into it
-    offset = phase + ((geometry.camera_phase or 0.0) * sub_s if geometry.camera_phase is not None else
+    offset = phase + (geometry.camera_phase * sub_s if geometry.camera_phase is not None else
                       (sub_s - geometry.exposure_s) / 2 if geometry.camera_lock else 0.0)
     free = None
     if exposing and geometry.camera_phase is not None:
