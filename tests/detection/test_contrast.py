@@ -1164,3 +1164,28 @@ def test_a_spot_is_a_strict_maximum_on_no_ridge():
     excess[2, 5] = excess[2, 6] = 80       # a tie: no strict maximum
     flat = np.array([2 * 9 + 2, 6 * 9 + 4, 2 * 9 + 5, 2 * 9 + 6, 3 * 9 + 2])
     assert _spots(excess, flat).tolist() == [0]
+
+
+@pytest.mark.parametrize("wide", [False, True])
+def test_each_pixel_goes_to_the_nearest_of_its_own_components_peaks(wide):
+    # components of 2, 3, 7 and 19 peaks (several buckets), ties included: every pixel gets the
+    # first (highest) of its own component's equally near peaks, as a loop over the pairs finds
+    from antiscatter.detection.contrast import _FAR, _nearest_peak
+
+    rng = np.random.default_rng(5)
+    held_per_comp = np.array([2, 3, 7, 19, 2, 2])
+    kind, far = (np.int64, 1 << 40) if wide else (np.int32, _FAR)
+    tx = np.full((len(held_per_comp), held_per_comp.max()), far, kind)
+    ty = np.full_like(tx, far)
+    for c, k in enumerate(held_per_comp):
+        tx[c, :k] = rng.integers(0, 40, k)
+        ty[c, :k] = rng.integers(0, 40, k)
+    tx[0, :2], ty[0, :2] = (10, 14), (10, 10)  # a pixel at (12, 10) is as near to both
+    row = np.concatenate([[0], rng.integers(0, len(held_per_comp), 600)])
+    x, y = np.concatenate([[12], rng.integers(0, 40, 600)]), np.concatenate([[10], rng.integers(0, 40, 600)])
+    found = _nearest_peak(x, y, row, held_per_comp[row], tx, ty)
+    for i in range(len(x)):
+        k = held_per_comp[row[i]]
+        d2 = [(x[i] - tx[row[i], j]) ** 2 + (y[i] - ty[row[i], j]) ** 2 for j in range(k)]
+        assert found[i] == int(np.argmin(d2)), i
+    assert found[0] == 0

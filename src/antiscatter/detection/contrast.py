@@ -1425,23 +1425,50 @@ def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarr
     width = int(counts[comps].max())
     first = np.searchsorted(kc, comps)
     rank = np.arange(len(kc)) - first[row[kc]]
-    tx = np.full((len(comps), width), 1e9)
-    ty = np.full((len(comps), width), 1e9)
+    far, kind = (_FAR, np.int32) if max(excess.shape) <= _FAR // 3 else (1 << 40, np.int64)
+    tx = np.full((len(comps), width), far, kind)
+    ty = np.full((len(comps), width), far, kind)
     tx[row[kc], rank], ty[row[kc], rank] = kx, ky
     pixels = np.flatnonzero(split[lab])
     r = row[lab[pixels]]
-    # each pixel against its own component's peaks only, all pairs at once (a cluster of a dozen
-    # discs does not make every pixel of every pair measure a dozen distances)
-    held = counts[comps][r]
-    pair = np.repeat(np.arange(len(pixels)), held)
-    rank = np.arange(len(pair)) - np.repeat(np.cumsum(held) - held, held)
-    at = r.take(pair) * width + rank  # the peak's place in tx, ty
-    xp, yp = x.take(pixels).take(pair), y.take(pixels).take(pair)
-    nearest = rank[_first_minima((xp - tx.take(at)) ** 2 + (yp - ty.take(at)) ** 2, held)]
+    nearest = _nearest_peak(x.take(pixels), y.take(pixels), r, counts[comps][r], tx, ty)
     new_base = n + np.concatenate([[0], np.cumsum(counts[comps] - 1)[:-1]])  # first new label per component
     lab = lab.copy()
     lab[pixels] = np.where(nearest == 0, lab[pixels], new_base[r] + nearest - 1)
     return lab, n + int((counts[comps] - 1).sum())
+
+
+def _nearest_peak(x: np.ndarray, y: np.ndarray, row: np.ndarray, held: np.ndarray, tx: np.ndarray,
+                  ty: np.ndarray) -> np.ndarray:
+    """For each pixel (x, y), the rank of the nearest of its own component's peaks: ``row`` its
+    component's row of ``tx``, ``ty`` ((C, W) integer peak coordinates, each row's first ``held``
+    real and the rest far away), the first of equally near ones (the higher peak).
+
+    Each pixel is measured against a row cut to the most peaks any component of its bucket holds,
+    the components bucketed by powers of two of their peaks (2, 3-4, 5-8, ...), so a cluster of
+    a dozen discs does not make every pixel of every pair measure a dozen distances.  One
+    ``argmin`` a bucket, in 32-bit integers (exact), where pairing every pixel with each of its
+    peaks and taking the first minimum of each run took the seed tank's clusters (4,200 pixels,
+    35,000 pairs) ~0.9 ms, and this ~0.5."""
+    x, y = x.astype(tx.dtype), y.astype(tx.dtype)
+    width = tx.shape[1]
+    if len(x) * width <= 2 * int(held.sum()):  # one bucket is enough
+        dx, dy = x[:, None] - tx[row], y[:, None] - ty[row]
+        return np.argmin(dx * dx + dy * dy, axis=1)
+    bucket = np.frexp((held - 1).astype(np.float64))[1]  # 2 -> 1, 3-4 -> 2, 5-8 -> 3, ...
+    order = np.argsort(bucket, kind="stable")
+    nearest = np.empty(len(x), np.intp)
+    for sel in np.split(order, np.flatnonzero(np.diff(bucket[order])) + 1):
+        cut, rb = int(held[sel].max()), row[sel]
+        dx, dy = x[sel, None] - tx[rb, :cut], y[sel, None] - ty[rb, :cut]
+        nearest[sel] = np.argmin(dx * dx + dy * dy, axis=1)
+    return nearest
+
+
+#: where :func:`_nearest_peak`'s missing peaks lie, in 32-bit coordinates: for working images up
+#: to a third of this a side, farther than any pixel is from its own peaks, with squared distances
+#: that still fit 32 bits (larger ones are measured in 64)
+_FAR = 30000
 
 
 def _spots(excess: np.ndarray, flat: np.ndarray) -> np.ndarray:
@@ -1724,12 +1751,14 @@ def _split_flat(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarra
     lab, x, y, weight = lab[sel], x[sel], y[sel], weight[sel]
     if full is not None:  # each working pixel's 2x2 block of the frame
         grey, base = full
+        below = np.repeat(_gather(base, y * base.shape[1] + x), 4)  # each block's background
         x = (2 * x[:, None] + _BLOCK_X).ravel()
         y = (2 * y[:, None] + _BLOCK_Y).ravel()
         lab = np.repeat(lab, 4)
-        inside = (x < grey.shape[1]) & (y < grey.shape[0])
-        lab, x, y = lab[inside], x[inside], y[inside]
-        weight = grey[y, x].astype(np.float64) - base[y // 2, x // 2]
+        if 2 * base.shape[1] > grey.shape[1] or 2 * base.shape[0] > grey.shape[0]:
+            inside = (x < grey.shape[1]) & (y < grey.shape[0])
+            lab, x, y, below = lab[inside], x[inside], y[inside], below[inside]
+        weight = _gather(grey, y * grey.shape[1] + x).astype(np.float64) - below
     top, = _group_max(lab, n, weight)
     core = weight >= 0.5 * top[lab]
     plateau = (weight >= _PLATEAU_SHARE * top[lab])[core]
