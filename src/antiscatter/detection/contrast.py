@@ -1796,8 +1796,16 @@ def _strip(lab: np.ndarray, x: np.ndarray, y: np.ndarray, n: int, wanted: np.nda
     the seed tank's whole band of discs (four times the work at full resolution).  Returns the
     pixels' strip coordinates (x, y), each component's shift (strip = frame + shift; (n,) each)
     and the image."""
-    right, bottom, left, top = _group_max(lab, n, x, y, -x, -y)
-    left, top = -left, -top
+    if _FAST_AT:  # in the coordinates' own integers, min and max
+        right, bottom = np.zeros(n, x.dtype), np.zeros(n, y.dtype)
+        left, top = np.full(n, np.iinfo(x.dtype).max, x.dtype), np.full(n, np.iinfo(y.dtype).max, y.dtype)
+        np.maximum.at(right, lab, x)
+        np.maximum.at(bottom, lab, y)
+        np.minimum.at(left, lab, x)
+        np.minimum.at(top, lab, y)
+    else:
+        right, bottom, left, top = _group_max(lab, n, x, y, -x, -y)
+        left, top = -left, -top
     width = np.where(wanted, right - left + 4, 0).astype(np.intp)
     shift_x = (np.cumsum(width) - width + 3 - left).astype(np.intp)
     shift_y = (3 - top).astype(np.intp)
