@@ -1811,7 +1811,7 @@ def _strip(lab: np.ndarray, x: np.ndarray, y: np.ndarray, n: int, wanted: np.nda
     shift_y = (3 - top).astype(np.intp)
     sx, sy = x + shift_x[lab], y + shift_y[lab]
     image = np.zeros((int((bottom - top)[wanted].max()) + 7, int(width.sum()) + 4), np.uint8)
-    image[sy, sx] = 1
+    image.ravel().put(sy * image.shape[1] + sx, 1)
     return (sx, sy), (shift_x, shift_y), image
 
 
