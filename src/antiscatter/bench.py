@@ -6,7 +6,9 @@ what is timed is the steady state (a learning detector's first frames, before
 its background settles, cost up to several times more).  Detectors run interleaved -- frame by frame, in a
 rotating order -- so that machine noise and drift hit all of them alike.  The
 time of one plain copy of a frame is measured the same way and reported as the
-memory floor.
+memory floor, and so is :func:`minimal_chain`, the least any detector of the
+``contrast`` design does (one channel, one pooling, a background, one
+threshold, one labelling pass): the chain floor.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from .runtime import time_stages
 from .simulate import make_scene
 
 __all__ = ["BenchResult", "bench", "format_bench", "machine_description", "bench_modes", "format_modes",
-           "particle_bench_args"]
+           "particle_bench_args", "minimal_chain"]
 
 DEFAULT_SIZES = ((800, 600, "mixed"), (1456, 1088, "fullres"))
 
@@ -100,6 +102,37 @@ class BenchResult:
                 "input": self.input, "sizes": sizes}
 
 
+#: the background cell of :func:`minimal_chain` (working pixels) and its fixed threshold (grey levels)
+CHAIN_CELL = 16
+CHAIN_LEVEL = 8
+
+
+def minimal_chain(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The least a local-contrast detector does, as a floor for ``bench`` to time (not a detector:
+    no noise estimate, no learnt background, no splitting, no rejection): one channel ((H, W, 3)
+    BGR -> luma; a grey or Y frame as it is), 2x2 block means, a background from the means of
+    ``CHAIN_CELL``-pixel cells brought back up linearly, one threshold ``CHAIN_LEVEL`` grey levels
+    above it, one labelling pass, and each component's centroid and equivalent radius.
+
+    Returns (centres (N, 2), radii (N,)) in full-resolution pixels.  What a detector costs beyond
+    this is its own logic; what this costs, no detector of that design can save."""
+    grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    h, w = grey.shape[0] // 2, grey.shape[1] // 2
+    half = cv2.resize(grey, (w, h), interpolation=cv2.INTER_AREA)
+    cw, ch = max(w // CHAIN_CELL, 1), max(h // CHAIN_CELL, 1)
+    cells = cv2.resize(half[: ch * CHAIN_CELL, : cw * CHAIN_CELL], (cw, ch), interpolation=cv2.INTER_AREA)
+    background = cv2.resize(cells, (w, h), interpolation=cv2.INTER_LINEAR)
+    mask = cv2.compare(cv2.subtract(half, background), CHAIN_LEVEL, cv2.CMP_GT)
+    flat = np.flatnonzero(np.greater(mask, 0))
+    count, labels = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_16U if len(flat) < 65535 else cv2.CV_32S)
+    lab = labels.ravel().take(flat).astype(np.intp) - 1
+    area = np.bincount(lab, minlength=count - 1)
+    y, x = np.divmod(flat, w)
+    safe = np.maximum(area, 1)
+    centres = np.column_stack([np.bincount(lab, x, count - 1) / safe, np.bincount(lab, y, count - 1) / safe])
+    return 2 * centres + 0.5, 2 * np.sqrt(area / np.pi)
+
+
 def pool_index(k: int, distinct: int) -> int:
     """Frame k of the bench's sequence: the pool played forwards, then back, and so on (0, 1, ..,
     n - 1, n - 2, .., 1, 0, 1, ..), so the camera holds still and particles only ever move a
@@ -140,11 +173,14 @@ def bench(*, detectors: list[str] | None = None, frames: int = 200, threads: int
                 frame = scene.render()
                 pool.append(cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY) if input == "y" else frame)
             copy_target = np.empty_like(pool[0])
+            for image in pool:
+                minimal_chain(image)
             per_stage: dict[str, dict[str, list[int]]] = {
                 n: {s.name: [] for s in d.stages} for n, d in built.items()}
             totals: dict[str, list[int]] = {n: [] for n in built}
             counts: dict[str, list[int]] = {n: [] for n in built}
             copies: list[int] = []
+            chains: list[int] = []
             order = list(built)
             for name in order:  # warm-up: first calls allocate, learnt backgrounds settle (steady state)
                 for image in pool:
@@ -154,6 +190,9 @@ def bench(*, detectors: list[str] | None = None, frames: int = 200, threads: int
                 t0 = time.perf_counter_ns()
                 np.copyto(copy_target, image)
                 copies.append(time.perf_counter_ns() - t0)
+                t0 = time.perf_counter_ns()
+                minimal_chain(image)
+                chains.append(time.perf_counter_ns() - t0)
                 rotated = order[k % len(order):] + order[:k % len(order)]
                 for name in rotated:
                     detections, durations = time_stages(built[name], image)
@@ -162,8 +201,11 @@ def bench(*, detectors: list[str] | None = None, frames: int = 200, threads: int
                     totals[name].append(sum(durations))
                     counts[name].append(len(detections))
             floor = float(np.median(copies)) / 1e3
+            chain = float(np.median(chains)) / 1e3
             seed_median = float(np.median(totals["seed"])) / 1e3 if "seed" in totals else None
             entry = {"size": f"{width}x{height}", "preset": preset, "copy_floor_us": _stats(copies),
+                     "chain_floor_us": _stats(chains),
+                     "chain_speedup_vs_seed": (seed_median / chain) if seed_median else None,
                      "detectors": {}, "_samples": {}}
             for name, d in built.items():
                 total = _stats(totals[name])
@@ -174,6 +216,7 @@ def bench(*, detectors: list[str] | None = None, frames: int = 200, threads: int
                     "fps": 1e6 / total["median_us"] if total["median_us"] else float("inf"),
                     "speedup_vs_seed": (seed_median / total["median_us"]) if seed_median else None,
                     "x_floor": total["median_us"] / floor if floor else None,
+                    "x_chain": total["median_us"] / chain if chain else None,
                 }
                 for stage in d.stages:
                     entry["_samples"][f"{name}: {stage.label}"] = np.asarray(per_stage[name][stage.name]) / 1e3
@@ -259,8 +302,12 @@ def format_bench(result: BenchResult) -> str:
     for entry in result.sizes:
         floor = entry["copy_floor_us"]["median_us"]
         lines.append("")
+        chain = entry["chain_floor_us"]["median_us"]
         lines.append(f"{entry['size']} ({entry['preset']} scene); memory floor (one frame copy): "
-                     f"median {floor:.1f} us")
+                     f"median {floor:.1f} us; chain floor (minimal_chain: channel, pooling, background, "
+                     f"threshold, labels): median {chain:.1f} us"
+                     + (f", {entry['chain_speedup_vs_seed']:.2f}x seed's throughput"
+                        if entry.get("chain_speedup_vs_seed") else ""))
         for name, d in entry["detectors"].items():
             lines.append(f"  detector {name}: {d['particles_per_frame']:.1f} particles/frame")
             lines.append(f"    {'stage':<28}{'mean':>9}{'sd':>9}{'median':>9}{'p99':>9}{'max':>9}  (us)")
@@ -271,7 +318,8 @@ def format_bench(result: BenchResult) -> str:
             lines.append(f"    {'total':<28}{t['mean_us']:>9.1f}{t['sd_us']:>9.1f}{t['median_us']:>9.1f}"
                          f"{t['p99_us']:>9.1f}{t['max_us']:>9.1f}")
             ratio = f", {d['speedup_vs_seed']:.2f}x seed's throughput" if d["speedup_vs_seed"] else ""
-            lines.append(f"    {d['fps']:.0f} frames/s{ratio}, {d['x_floor']:.1f}x the memory floor")
+            lines.append(f"    {d['fps']:.0f} frames/s{ratio}, {d['x_floor']:.1f}x the memory floor, "
+                         f"{d['x_chain']:.1f}x the chain floor")
     return "\n".join(lines)
 
 
@@ -291,6 +339,8 @@ def plot_bench(result: BenchResult, path: str) -> None:
         ax.set_xscale("log")
         ax.axvline(entry["copy_floor_us"]["median_us"], color="tab:red", linestyle="--",
                    label="memory floor (one frame copy)")
+        ax.axvline(entry["chain_floor_us"]["median_us"], color="tab:purple", linestyle=":",
+                   label="chain floor (minimal_chain)")
         ax.set_xlabel("microseconds per frame (log)")
         ax.set_title(f"{entry['size']} ({entry['preset']} scene)")
         ax.legend(fontsize=8)

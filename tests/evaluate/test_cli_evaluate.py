@@ -274,12 +274,14 @@ def test_bench_json_has_every_stage_for_every_detector(cli, tmp_path):
     assert data["opencv_threads"] == 1 and len(data["sizes"]) == 2
     for entry in data["sizes"]:
         assert entry["copy_floor_us"]["median_us"] > 0
+        assert entry["chain_floor_us"]["median_us"] > 0 and entry["chain_speedup_vs_seed"] > 0
         for name in DETECTORS:
             d = entry["detectors"][name]
             assert set(d["stages"]) == {s.name for s in make_detector(name).stages}
             for stage in d["stages"].values():
                 assert {"mean_us", "sd_us", "median_us", "p99_us", "max_us"} <= set(stage)
             assert d["total"]["median_us"] > 0
+            assert d["x_chain"] == pytest.approx(d["total"]["median_us"] / entry["chain_floor_us"]["median_us"])
         assert entry["detectors"]["seed"]["speedup_vs_seed"] == pytest.approx(1.0)
     assert cv2.imread(str(tmp_path / "b.png")) is not None
     assert data["input"] == "bgr"
@@ -353,3 +355,4 @@ def test_scoreboard_end_to_end_on_a_tiny_catalogue(tmp_path, cli):
 def test_matching_settings_that_are_not_numbers_in_range_are_refused(cli, args, message):
     result = cli("evaluate", "--scenario", "bubbles", "--frames", "1", *args)
     assert result.code == 2 and message in result.err and len(result.err.strip().splitlines()) == 1
+
