@@ -1,5 +1,6 @@
 """The lossless recorder and `antiscatter record`."""
 
+import os
 import re
 import signal
 import subprocess
@@ -77,8 +78,13 @@ def test_record_command_and_playback(tmp_path, cli):
 
 
 def test_ctrl_c_mid_recording_leaves_a_playable_file_with_every_captured_frame(tmp_path):
+    # interrupted 2 s after it says it has started (not 2 s after launch: on a loaded machine the
+    # interpreter's start-up alone took most of that, and 21 frames were captured)
     proc = subprocess.Popen([sys.executable, "-m", "antiscatter", "record", "r.mkv", "--source", "sim",
-                             "--fps", "60"], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                             "--fps", "60"], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    first = proc.stderr.readline()  # the log
+    assert first.startswith("antiscatter record: "), first
     time.sleep(2.0)
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=30)
