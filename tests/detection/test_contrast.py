@@ -1189,3 +1189,23 @@ def test_each_pixel_goes_to_the_nearest_of_its_own_components_peaks(wide):
         d2 = [(x[i] - tx[row[i], j]) ** 2 + (y[i] - ty[row[i], j]) ** 2 for j in range(k)]
         assert found[i] == int(np.argmin(d2)), i
     assert found[0] == 0
+
+
+def test_whether_two_peaks_stand_apart_does_not_depend_on_where_they_are():
+    # the excess sampled on the segment between a peak and its higher neighbour is rounded to
+    # pixels relative to the peak: rounded in frame coordinates, a sample halfway between pixels
+    # went one way or the other by the parity of the peaks' position (np.rint rounds half to even),
+    # so the same pair was split at one place and not one pixel further on -- and in the shape
+    # test's strip, where each component's place depends on the boxes of the others before it
+    from antiscatter.detection.contrast import _separate
+
+    kept = set()
+    for x0 in (10, 11):
+        for y0 in (10, 11):
+            excess = np.full((30, 30), 150, np.uint8)
+            excess[y0, x0], excess[y0 + 1, x0 + 3] = 100, 200  # the lower peak and the higher, (3, 1) apart
+            excess[y0, x0 + 2] = 10  # a dip on one of the two pixels the segment passes halfway between
+            comp, py, px = _separate(np.array([0, 0]), np.array([y0, y0 + 1]), np.array([x0, x0 + 3]),
+                                     np.array([100.0, 200.0]), excess, np.array([1.0, 1.0]), min_d2=4)
+            kept.add(len(comp))
+    assert len(kept) == 1, kept

@@ -1655,8 +1655,10 @@ def _separate(comp: np.ndarray, py: np.ndarray, px: np.ndarray, value: np.ndarra
         if len(i):
             steps = 2 + int(np.sqrt(d2[far].max()))
             t = np.arange(steps) / (steps - 1.0)
-            ty = np.rint(py[i, None] + t * (py[j] - py[i])[:, None]).astype(np.intp)
-            tx = np.rint(px[i, None] + t * (px[j] - px[i])[:, None]).astype(np.intp)
+            # rounded relative to the peak: in frame coordinates a sample halfway between two pixels
+            # went to one or the other by the parity of where the pair lay (half to even)
+            ty = py[i, None] + np.rint(t * (py[j] - py[i])[:, None]).astype(np.intp)
+            tx = px[i, None] + np.rint(t * (px[j] - px[i])[:, None]).astype(np.intp)
             dip = excess[py[i], px[i]].astype(np.float64) - excess[ty, tx].min(axis=1)
             apart = dip >= np.maximum(value[i] / 4.0, 3.0 * sigma[i])
             if strict is not None:
