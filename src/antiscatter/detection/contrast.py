@@ -1653,13 +1653,21 @@ def _separate(comp: np.ndarray, py: np.ndarray, px: np.ndarray, value: np.ndarra
         far = d2 >= min_d2
         i, j = i[far], j[far]
         if len(i):
-            steps = 2 + int(np.sqrt(d2[far].max()))
-            t = np.arange(steps) / (steps - 1.0)
+            # each segment sampled by its own length, under half a pixel apart either way (the
+            # samples past its end at the higher peak); sampled alike at the longest pair's
+            # spacing, a pair's dip hung on the other pairs in the frame
+            dy, dx = py[j] - py[i], px[j] - px[i]
+            steps = 2 + 2 * (np.abs(dy) + np.abs(dx))
+            t = np.minimum(np.arange(int(steps.max()))[None, :] / (steps[:, None] - 1.0), 1.0)
             # rounded relative to the peak: in frame coordinates a sample halfway between two pixels
             # went to one or the other by the parity of where the pair lay (half to even)
-            ty = py[i, None] + np.rint(t * (py[j] - py[i])[:, None]).astype(np.intp)
-            tx = px[i, None] + np.rint(t * (px[j] - px[i])[:, None]).astype(np.intp)
-            dip = excess[py[i], px[i]].astype(np.float64) - excess[ty, tx].min(axis=1)
+            width = excess.shape[1]
+            start = py[i] * width + px[i]
+            at = np.rint(t * dy[:, None]).astype(np.intp)
+            at *= width
+            at += np.rint(t * dx[:, None]).astype(np.intp)
+            at += start[:, None]
+            dip = _gather(excess, start).astype(np.float64) - _gather(excess, at.ravel()).reshape(at.shape).min(axis=1)
             apart = dip >= np.maximum(value[i] / 4.0, 3.0 * sigma[i])
             if strict is not None:
                 apart &= strict[i]
@@ -1751,8 +1759,10 @@ def _split_flat(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarra
     wanted[comps] = True
     sel = wanted[lab]
     lab, x, y, weight = lab[sel], x[sel], y[sel], weight[sel]
+    bounds = _bounds(lab, x, y, n)  # around every pixel, the core's among them (a quarter as many to read)
     if full is not None:  # each working pixel's 2x2 block of the frame
         grey, base = full
+        bounds = (2 * bounds[0], 2 * bounds[1], 2 * bounds[2] + 1, 2 * bounds[3] + 1)
         below = np.repeat(_gather(base, y * base.shape[1] + x), 4)  # each block's background
         x = (2 * x[:, None] + _BLOCK_X).ravel()
         y = (2 * y[:, None] + _BLOCK_Y).ravel()
@@ -1765,8 +1775,14 @@ def _split_flat(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarra
     core = weight >= 0.5 * top[lab]
     plateau = (weight >= _PLATEAU_SHARE * top[lab])[core]
     lab, x, y = lab[core], x[core], y[core]
-    (cx, cy), (shift_x, shift_y), image = _strip(lab, x, y, n, wanted)
+    (cx, cy), (shift_x, shift_y), image = _strip(lab, x, y, wanted, bounds)
     distance = cv2.distanceTransform(image, cv2.DIST_L2, 3)
+    # to 1/1024 px: OpenCV's passes sum the same steps in another order by where the component
+    # lies in the strip, and equal distances came out a float's last bit apart -- a plateau's
+    # maxima, and so the split, then hung on the boxes of the other components before it
+    cv2.multiply(distance, _DISTANCE_STEPS, dst=distance)
+    np.rint(distance, out=distance)
+    cv2.multiply(distance, 1.0 / _DISTANCE_STEPS, dst=distance)
     value = distance[cy, cx]
     peak = value >= cv2.dilate(distance, _K5)[cy, cx]
     # a flat core (most of it at the plateau: white or saturated) may be discs whose necks are
@@ -1786,31 +1802,42 @@ def _split_flat(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarra
     return kept_c, kept_y, kept_x
 
 
+#: the shape test's distances are taken to this many steps a pixel (see :func:`_split_flat`)
+_DISTANCE_STEPS = 1024.0
 _BINOMIAL = np.array([1.0, 2.0, 1.0], np.float32)
 _BLOCK_X = np.array([0, 1, 0, 1])
 _BLOCK_Y = np.array([0, 0, 1, 1])
 
 
-def _strip(lab: np.ndarray, x: np.ndarray, y: np.ndarray, n: int, wanted: np.ndarray):
+def _bounds(lab: np.ndarray, x: np.ndarray, y: np.ndarray, n: int) -> tuple[np.ndarray, ...]:
+    """(left, top, right, bottom): each label's pixel bounding box, inclusive ((n,) each, in the
+    coordinates' integers; labels without pixels get left > right)."""
+    if not _FAST_AT:
+        right, bottom, left, top = _group_max(lab, n, x, y, -x, -y)
+        return -left, -top, right, bottom
+    right, bottom = np.full(n, -1, x.dtype), np.full(n, -1, y.dtype)
+    left, top = np.full(n, np.iinfo(x.dtype).max, x.dtype), np.full(n, np.iinfo(y.dtype).max, y.dtype)
+    np.maximum.at(right, lab, x)
+    np.maximum.at(bottom, lab, y)
+    np.minimum.at(left, lab, x)
+    np.minimum.at(top, lab, y)
+    return left, top, right, bottom
+
+
+def _strip(lab: np.ndarray, x: np.ndarray, y: np.ndarray, wanted: np.ndarray,
+           bounds: tuple[np.ndarray, ...]):
     """The pixels of each wanted component drawn (as 1) in a box of its own, the boxes side by
     side in one strip with 3 px of background around each (for the distance transform and the
     5x5 maximum): an image as large as the components, where their common bounding box spanned
-    the seed tank's whole band of discs (four times the work at full resolution).  Returns the
-    pixels' strip coordinates (x, y), each component's shift (strip = frame + shift; (n,) each)
-    and the image."""
-    if _FAST_AT:  # in the coordinates' own integers, min and max
-        right, bottom = np.zeros(n, x.dtype), np.zeros(n, y.dtype)
-        left, top = np.full(n, np.iinfo(x.dtype).max, x.dtype), np.full(n, np.iinfo(y.dtype).max, y.dtype)
-        np.maximum.at(right, lab, x)
-        np.maximum.at(bottom, lab, y)
-        np.minimum.at(left, lab, x)
-        np.minimum.at(top, lab, y)
-    else:
-        right, bottom, left, top = _group_max(lab, n, x, y, -x, -y)
-        left, top = -left, -top
-    width = np.where(wanted, right - left + 4, 0).astype(np.intp)
-    shift_x = (np.cumsum(width) - width + 3 - left).astype(np.intp)
-    shift_y = (3 - top).astype(np.intp)
+    the seed tank's whole band of discs (four times the work at full resolution).  ``bounds``:
+    (left, top, right, bottom) of each component, inclusive, around its pixels here or more (the
+    distances, maxima and dips at its pixels are the same in a larger box or another place).
+    Returns the pixels' strip coordinates (x, y), each component's shift (strip = frame + shift;
+    (n,) each) and the image."""
+    left, top, right, bottom = (np.where(wanted, v, 0).astype(np.intp) for v in bounds)
+    width = np.where(wanted, right - left + 4, 0)
+    shift_x = np.cumsum(width) - width + 3 - left
+    shift_y = 3 - top
     sx, sy = x + shift_x[lab], y + shift_y[lab]
     image = np.zeros((int((bottom - top)[wanted].max()) + 7, int(width.sum()) + 4), np.uint8)
     image.ravel().put(sy * image.shape[1] + sx, 1)
