@@ -1256,13 +1256,9 @@ def test_the_shape_test_does_not_depend_on_where_each_cluster_lies_in_its_strip(
     # bit apart, which decided a plateau's maxima: before they were taken to 1/1024 px, frames 9
     # and 18 of these came out otherwise)
     from antiscatter.detection import contrast
-    from antiscatter.simulate import make_scene
+    from antiscatter.evaluate.runs import scenario_frames
 
-    scene = make_scene("seed", rng=np.random.default_rng(3), size=(800, 600))
-    frames = []
-    for _ in range(19):
-        frames.append(scene.render())
-        scene.step()
+    frames = [image.copy() for _, image, _, _ in scenario_frames("seed", (800, 600), 19, 3)]
     detector = make_detector("contrast")
     exact = [detector.detect(f) for f in frames]
     bounds = contrast._bounds
