@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from .detection import DETECTORS, make_detector
+from .detection.contrast import downsample, label
 from .runtime import time_stages
 from .simulate import make_scene
 
@@ -116,20 +117,16 @@ def minimal_chain(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
     Returns (centres (N, 2), radii (N,)) in full-resolution pixels.  What a detector costs beyond
     this is its own logic; what this costs, no detector of that design can save."""
-    grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    h, w = grey.shape[0] // 2, grey.shape[1] // 2
-    half = cv2.resize(grey, (w, h), interpolation=cv2.INTER_AREA)
+    half = downsample(image, factor=2)  # luma (or the grey frame), 2x2 block means
+    h, w = half.shape
     cw, ch = max(w // CHAIN_CELL, 1), max(h // CHAIN_CELL, 1)
     cells = cv2.resize(half[: ch * CHAIN_CELL, : cw * CHAIN_CELL], (cw, ch), interpolation=cv2.INTER_AREA)
     background = cv2.resize(cells, (w, h), interpolation=cv2.INTER_LINEAR)
-    mask = cv2.compare(cv2.subtract(half, background), CHAIN_LEVEL, cv2.CMP_GT)
-    flat = np.flatnonzero(np.greater(mask, 0))
-    count, labels = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_16U if len(flat) < 65535 else cv2.CV_32S)
-    lab = labels.ravel().take(flat).astype(np.intp) - 1
-    area = np.bincount(lab, minlength=count - 1)
-    y, x = np.divmod(flat, w)
+    components = label(cv2.compare(cv2.subtract(half, background), CHAIN_LEVEL, cv2.CMP_GT))
+    lab, n = components["labels"], components["count"]
+    area = np.bincount(lab, minlength=n)
     safe = np.maximum(area, 1)
-    centres = np.column_stack([np.bincount(lab, x, count - 1) / safe, np.bincount(lab, y, count - 1) / safe])
+    centres = np.column_stack([np.bincount(lab, components["x"], n) / safe, np.bincount(lab, components["y"], n) / safe])
     return 2 * centres + 0.5, 2 * np.sqrt(area / np.pi)
 
 

@@ -355,4 +355,3 @@ def test_scoreboard_end_to_end_on_a_tiny_catalogue(tmp_path, cli):
 def test_matching_settings_that_are_not_numbers_in_range_are_refused(cli, args, message):
     result = cli("evaluate", "--scenario", "bubbles", "--frames", "1", *args)
     assert result.code == 2 and message in result.err and len(result.err.strip().splitlines()) == 1
-

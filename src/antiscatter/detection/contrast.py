@@ -1451,14 +1451,14 @@ def _nearest_peak(x: np.ndarray, y: np.ndarray, row: np.ndarray, held: np.ndarra
     peaks and taking the first minimum of each run took the seed tank's clusters (4,200 pixels,
     35,000 pairs) ~0.9 ms, and this ~0.5."""
     x, y = x.astype(tx.dtype), y.astype(tx.dtype)
-    width = tx.shape[1]
-    if len(x) * width <= 2 * int(held.sum()):  # one bucket is enough
-        dx, dy = x[:, None] - tx[row], y[:, None] - ty[row]
-        return np.argmin(dx * dx + dy * dy, axis=1)
-    bucket = np.frexp((held - 1).astype(np.float64))[1]  # 2 -> 1, 3-4 -> 2, 5-8 -> 3, ...
-    order = np.argsort(bucket, kind="stable")
+    if len(x) * tx.shape[1] <= 2 * int(held.sum()):  # one bucket is enough
+        buckets = [slice(None)]
+    else:
+        bucket = np.frexp((held - 1).astype(np.float64))[1]  # 2 -> 1, 3-4 -> 2, 5-8 -> 3, ...
+        order = np.argsort(bucket, kind="stable")
+        buckets = np.split(order, np.flatnonzero(np.diff(bucket[order])) + 1)
     nearest = np.empty(len(x), np.intp)
-    for sel in np.split(order, np.flatnonzero(np.diff(bucket[order])) + 1):
+    for sel in buckets:
         cut, rb = int(held[sel].max()), row[sel]
         dx, dy = x[sel, None] - tx[rb, :cut], y[sel, None] - ty[rb, :cut]
         nearest[sel] = np.argmin(dx * dx + dy * dy, axis=1)
