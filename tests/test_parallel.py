@@ -77,7 +77,7 @@ def test_processes_mode_end_to_end_matches_single(tmp_path, mode):
 
 
 def test_a_crash_in_the_detector_process_stops_the_run(tmp_path, monkeypatch):
-    from antiscatter.detection import contrast
+    from antiscatter.detection.contrast import chain as contrast  # the module whose stage calls downsample
 
     def broken(image, **params):
         raise RuntimeError("worker exploded")

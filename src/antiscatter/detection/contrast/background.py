@@ -1,0 +1,130 @@
+"""Stages 2-3 from a single frame: its spatial background (:func:`spatial_background`), the
+prominence test its particles must pass (:func:`prominence_level`, :func:`prominent_only`), and the
+threshold against a background (:func:`threshold_mask`, :func:`_near`) with the noise helpers.
+
+The learnt, per-pixel background that takes over when frames follow each other is
+:class:`~antiscatter.detection.contrast.model.BackgroundModel`.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from ...detections import Detections
+from .kernels import _disc
+
+
+def spatial_background(half: np.ndarray, *, cell: int, window: int = 0) -> np.ndarray:
+    """Background of a working-resolution frame from that frame alone, float32 (h, w): the 3x3
+    median of the cell means (the lamp's cone, the scene's brightness at a coarse scale), raised
+    to the frame's ``window`` x ``window`` median where that is brighter (texture: a pebble,
+    a padding highlight larger than half the window stays background, a particle smaller does not).
+
+    cell: cell size, window: median window (0 = none), both in working-resolution pixels.
+    """
+    h, w = half.shape
+    c = max(cell, 1)
+    cw, ch = max(w // c, 3), max(h // c, 3)
+    # in float: cell means rounded to whole grey levels biased the first frame's noise estimate
+    means = cv2.resize(half.astype(np.float32), (cw, ch), interpolation=cv2.INTER_AREA)
+    robust = cv2.medianBlur(means, 3)  # a particle spoils a cell, not its 3x3 median
+    coarse = cv2.resize(robust, (w, h), interpolation=cv2.INTER_LINEAR)
+    if window:  # the median at half the resolution: 0.15 ms at 400x300 where the full one takes 3.6
+        small = cv2.resize(half, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
+        # OpenCV's 8-bit median takes windows up to 255 (frames over 6000 px wide ask for more)
+        texture = cv2.medianBlur(small, min(max(int(round(window / 2)) | 1, 3), 255))
+        coarse = cv2.max(coarse, cv2.resize(texture, (w, h), interpolation=cv2.INTER_LINEAR).astype(coarse.dtype))
+    return coarse.astype(np.float32, copy=False)
+
+
+def _ring(radius: int, width: int = 2) -> np.ndarray:
+    """uint8 kernel: the pixels at distance [radius, radius + width) from the centre."""
+    r = radius + width
+    y, x = np.mgrid[-r:r + 1, -r:r + 1]
+    d = np.hypot(x, y)
+    return ((d >= radius) & (d < radius + width)).astype(np.uint8)
+
+
+def _rings(texture: int) -> tuple[int, ...]:
+    """Ring radii (full-resolution pixels) of a single frame's prominence test: 3, 6, 12, ... up
+    to ``texture`` (none when it is 0)."""
+    radii = []
+    while texture and 3 << len(radii) <= texture:
+        radii.append(3 << len(radii))
+    return tuple(radii)
+
+
+def prominent_only(mask: np.ndarray, prominent: np.ndarray, reach: int) -> np.ndarray:
+    """``mask`` (uint8) cut to its components that hold a ``prominent`` pixel, and within ``reach``
+    pixels of one: a spot that outshines its rings is a particle and the rest of its component
+    its rim (a neighbour it touches, which its rings cross, too); what holds none is texture."""
+    count, labels = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
+    keep = np.zeros(count, np.uint8)
+    keep[labels[prominent > 0]] = 255
+    keep[0] = 0
+    return cv2.bitwise_and(keep[labels], cv2.dilate(prominent, _disc(reach)))
+
+
+#: the window (working pixels at 800 px wide, scaled with the width above) of the median a single
+#: frame's noise is measured about: the spread at the scale of the rings, so the seabed's faint
+#: pebbles and blotches count as the texture they are (history: docs/decisions/001-contrast-tuning.md)
+NOISE_WINDOW = 13
+
+
+def prominence_level(half: np.ndarray, rings: tuple[int, ...], *, cell: int,
+                     window: int = NOISE_WINDOW) -> tuple[np.ndarray, np.ndarray]:
+    """(level uint8 (h, w), noise float32 per coarse cell) of a working-resolution frame, from that
+    frame alone.
+
+    level: for each pixel the lowest, over the rings of ``rings`` radii, of the brightest pixel on
+    the ring around it -- what it must outshine to be a particle.  A compact bright spot smaller
+    than a ring outshines it; a line, an edge or a patch larger than the ring does not (the ring
+    crosses it), however bright.  noise: per ``cell`` x ``cell`` cell (3x3-cell median) the mean
+    spread of the frame about its ``window`` x ``window`` median, both ways, as a Gaussian's sigma
+    -- the sensor's noise on plain water, the texture's grain on textured ground, where a spot
+    must outshine more to count (both ways: on one frame the texture's bright side is what
+    makes false alarms).
+    """
+    h, w = half.shape
+    level = None
+    for radius in rings:
+        ring = cv2.dilate(half, _ring(radius))
+        level = ring if level is None else cv2.min(level, ring)
+    # the median at half the resolution (upsampled): 0.4 ms at 400x300 where the full one takes 4
+    small = cv2.resize(half, (max(w // 2, 1), max(h // 2, 1)), interpolation=cv2.INTER_AREA)
+    middle = cv2.resize(cv2.medianBlur(small, max(window // 2, 1) | 1), (w, h), interpolation=cv2.INTER_LINEAR)
+    spread = cv2.absdiff(half, middle).astype(np.float32)
+    cells = cv2.resize(spread, (max(w // cell, 3), max(h // cell, 3)), interpolation=cv2.INTER_AREA)
+    noise = cv2.medianBlur(cells, 3) * np.float32(1.2533)  # s = sqrt(pi / 2) E|x| for Gaussian noise
+    return level, noise
+
+
+def threshold_mask(half: np.ndarray, base: np.ndarray, limit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(candidate mask uint8, positive excess over the background uint8).
+
+    A pixel is a candidate where its excess over the background, max(frame - base, 0),
+    exceeds ``limit`` (the model's max(k * noise, min_contrast), both uint8).
+    """
+    excess = cv2.subtract(half, base)
+    return cv2.compare(excess, limit, cv2.CMP_GT), excess
+
+
+def noise_at(noise: np.ndarray, x: np.ndarray, y: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """The coarse noise map sampled at working-resolution pixels (x, y)."""
+    ch, cw = noise.shape
+    h, w = shape
+    return noise[np.minimum(y * ch // h, ch - 1), np.minimum(x * cw // w, cw - 1)]
+
+
+def _near(shape: tuple[int, int], expected: Detections, factor: int) -> np.ndarray:
+    """uint8 mask (255) of the working pixels within about a radius + 1 of the expected particles:
+    their pixels set at once, then one dilation by a disc of the median radius (at most 8 px)."""
+    h, w = shape
+    near = np.zeros(shape, np.uint8)
+    x = np.rint(expected.centres[:, 0] / factor).astype(np.intp)
+    y = np.rint(expected.centres[:, 1] / factor).astype(np.intp)
+    inside = (x >= 0) & (x < w) & (y >= 0) & (y < h)
+    near[y[inside], x[inside]] = 255
+    radius = int(np.clip(np.ceil(np.median(expected.radii) / factor + 1), 1, 8))
+    return cv2.dilate(near, _disc(radius))
