@@ -503,9 +503,11 @@ def test_the_lamps_own_pattern_on_the_background_is_not_taken_for_particles():
             found.append(detector.detect(np.clip(frame, 0, 255).astype(np.uint8)))
         for f in found[-3:]:
             assert (np.hypot(f.centres[:, 0] - (40 + len(schedule) - 3), f.centres[:, 1] - 40) < 3).sum() <= 1
-        counts[informed] = sum(len(f) for f in found[20:])
-    assert counts[True] <= 9 + 3  # the particle in each of the 9 frames, at most a few spots more
-    assert counts[False] > counts[True] + 10  # uninformed, the lit-again patch is "particles"
+        counts[informed] = [len(f) for f in found[20:]]
+    assert sum(counts[True]) <= 9 + 3  # the particle in each of the 9 frames, at most a few spots more
+    # uninformed, the frames where the light changes show a few false spots at most: the learnt
+    # background that no longer fits the frame gives way to the frame alone (it flooded before)
+    assert sum(counts[False]) <= sum(counts[True]) + 6
 
 
 def test_a_pattern_landing_a_pixel_off_its_light_map_leaves_no_particles_at_the_rims():
@@ -809,10 +811,11 @@ def _turning_view(turn_deg, zoom, pan, frames=50):
 @pytest.mark.parametrize("register", [True, False])
 def test_the_background_turns_and_scales_with_the_view(turn, zoom, pan, register, monkeypatch):
     # the vehicle yawing, closing on the ground, and both as it goes: follow() takes translation only
-    from antiscatter.detection.contrast import BackgroundModel
+    from antiscatter.detection.contrast import BackgroundModel, chain
 
-    if not register:
+    if not register:  # nor the frame alone vetting a moving view's candidates
         monkeypatch.setattr(BackgroundModel, "register", lambda self, half: False)
+        monkeypatch.setattr(chain, "MOVING_SCALE", 0.0)
     detector = make_detector("contrast")
     counts = [len(detector.detect(frame)) for frame in _turning_view(turn, zoom, pan)]
     if register:
@@ -854,10 +857,11 @@ def test_a_view_drifting_over_bare_seabed_shows_no_particles(slope, monkeypatch)
     # the vehicle moving sideways at 0.25 m/s over seabed 2.5 m away: the view drifts half a
     # working pixel a frame; a background off by a fraction of a pixel is wrong at every edge of the
     # ground's texture (no particles in the water here: everything found is a false alarm)
-    from antiscatter.detection.contrast import BackgroundModel
+    from antiscatter.detection.contrast import BackgroundModel, chain
 
-    if not slope:
+    if not slope:  # nor the frame alone vetting a moving view's candidates
         monkeypatch.setattr(BackgroundModel, "MISREGISTRATION", 0.0)
+        monkeypatch.setattr(chain, "MOVING_SCALE", 0.0)
     counts = _false_alarms_from_a_moving_vehicle((0.25, 0.0, 0.0), particles=False)
     if slope:  # 3.6 a frame; 16 when the ground coming into view took the frame's spatial background,
         # 9 with the still view's memory (the background resampled at every move blurs)

@@ -22,6 +22,11 @@ from .params import ContrastParams
 from .working import UNLIT, _upper_light, _working_light, downsample, to_channel, working_factor
 
 
+#: share of the single-frame limit a candidate must clear in the frame alone while the view moves
+#: (the learnt background's own candidates are kept where the frame alone shows a spot); 0 = off
+MOVING_SCALE = 0.5
+
+
 @dataclass
 class ChainState:
     """What the stages of one ``contrast`` detector leave for later stages and later frames.
@@ -49,9 +54,6 @@ class ChainState:
     #: particles the tracker expects in the next frame, camera pixels (handed on: ``expect`` ->
     #: the next frame's threshold)
     expected: Detections | None = None
-    #: the mask the model learns from when it differs from the detections' (a single frame's
-    #: prominence test), (h, w) uint8 (handed on: threshold -> measure)
-    learn_mask: np.ndarray | None = None
     #: (reflectance, mask, frozen) the model learns from after the detections (handed on:
     #: measure -> update)
     learn: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None = None
@@ -113,10 +115,14 @@ def build_contrast(params: ContrastParams) -> Detector:
         mask, excess = threshold_mask(half, base, limit)
         prominent, model.prominent = model.prominent, None
         if prominent is not None:
-            # the model learns from this frame as it always has (see ``texture``): only the
-            # detections are cut to what stands out
-            state.learn_mask = cv2.compare(excess, model.limit, cv2.CMP_GT)
+            # a single frame's candidates cut to what stands out; the model learns from the cut mask,
+            # so the texture the cut left out is learnt as background from this frame on
             mask = prominent_only(mask, prominent, max(model.rings[-1] // 2, 1))
+        elif MOVING_SCALE and state.frozen is None and model.rings and model.moving():
+            # while the view moves the learnt background is resampled and lags: a candidate must
+            # also stand out in the frame alone (at MOVING_SCALE of its limit), as texture a follow
+            # left misregistered does not
+            cv2.bitwise_and(mask, cv2.dilate(model.single_mask(half, MOVING_SCALE), None), dst=mask)
         expected, state.expected = state.expected, None  # for this frame only
         if expected is not None and len(expected) and params.k_expected < params.k:
             # around particles the tracker expects, a lower threshold: faint light there is them
@@ -141,8 +147,7 @@ def build_contrast(params: ContrastParams) -> Detector:
                         max_radius=params.max_radius, split=params.split, frame_width=state.width,
                         factor=state.factor, lone_k=params.lone_k, seen=seen,
                         full=(state.grey, state.base), fine=state.frozen is None)
-        learn_mask, state.learn_mask = state.learn_mask, None
-        state.learn = (reflectance, mask if learn_mask is None else learn_mask, state.frozen)
+        state.learn = (reflectance, mask, state.frozen)
         return found
 
     def stage_update(found: Detections) -> Detections:

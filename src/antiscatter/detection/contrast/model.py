@@ -8,7 +8,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .background import NOISE_WINDOW, prominence_level, spatial_background, threshold_mask
+from .background import NOISE_WINDOW, prominence_level, prominent_only, spatial_background, threshold_mask
 from .follow import ViewFollowing
 
 
@@ -59,6 +59,14 @@ class BackgroundModel(ViewFollowing):
     MOVING_MEMORY = 10
     #: share of the frame that must differ from the background for a new scene
     NEW_SCENE = 0.3
+    #: share of the coarse cells the learnt background may explain worse than the frame's own
+    #: spatial background before it is dropped (a cut, an unrelated still, the lamp moved)
+    MISFIT_SHARE = 0.25
+    #: a cell is explained worse when its mean |frame - learnt| exceeds its mean |frame - spatial|
+    #: by this share of the latter plus MISFIT_LEVELS grey levels (the learnt background's own
+    #: noise adds a little on plain water)
+    MISFIT_RATIO = 0.1
+    MISFIT_LEVELS = 0.5
     #: a pixel's deficit counts towards its cell's noise up to this many times the frame's typical
     #: (median) noise, so a background that learnt some passing particles does not inflate the
     #: noise (a 4 sigma deficit comes once in 30,000 pixels); not under the lamp's pattern
@@ -102,6 +110,7 @@ class BackgroundModel(ViewFollowing):
         self._next = 0
         self._frames = 0
         self._typical_noise = 0.0  # the noise map's median
+        self.misfit_share = 0.0  # the last :meth:`misfit` test's share of cells explained worse
         self._reset_view()
 
     def _rows(self, band: int, height: int) -> tuple[int, int, int, int]:
@@ -126,7 +135,7 @@ class BackgroundModel(ViewFollowing):
                 else:
                     self._moved_ago = 0 if self._turn_moving else self._moved_ago + 1
                 self.match_gain(half)
-            if self.new_scene(half):
+            if self.new_scene(half) or (not self.moving() and self.misfit(half)):
                 self.reset()
             elif self._moved_ago <= self.MOVED_FRAMES:
                 return self.base, cv2.add(self.limit, self._slope_limit())
@@ -209,6 +218,38 @@ class BackgroundModel(ViewFollowing):
         rows = slice(None, None, 4)
         changed = cv2.compare(cv2.absdiff(half[rows], self.base[rows]), self.limit[rows], cv2.CMP_GT)
         return cv2.countNonZero(changed) > self.NEW_SCENE * changed.size
+
+    def misfit(self, half: np.ndarray) -> bool:
+        """True when the learnt background explains this frame worse than the frame alone does in
+        more than ``MISFIT_SHARE`` of the coarse cells: memory that does not fit the frame in hand
+        gives way to single-frame detection (the model starts again from this frame).  Not asked
+        while the view moves: a followed view's background lags it by design, and the frame alone
+        vets those candidates instead (the chain's ``MOVING_SCALE``).  Sets ``misfit_share``."""
+        h, w = half.shape
+        cells = (max(w // self.cell, 3), max(h // self.cell, 3))
+        own = spatial_background(half, cell=self.cell, window=self.window)
+        learnt = cv2.resize(cv2.absdiff(half, self.base).astype(np.float32), cells, interpolation=cv2.INTER_AREA)
+        alone = cv2.resize(cv2.absdiff(half.astype(np.float32), own), cells, interpolation=cv2.INTER_AREA)
+        worse = cv2.compare(learnt, alone * np.float32(1 + self.MISFIT_RATIO) + np.float32(self.MISFIT_LEVELS),
+                            cv2.CMP_GT)
+        self.misfit_share = cv2.countNonZero(worse) / worse.size
+        return self.misfit_share > self.MISFIT_SHARE
+
+    def moving(self) -> bool:
+        """True while the view counts as moving (``MOVED_FRAMES`` after the last pan or turn)."""
+        return self._moved_ago <= self.MOVED_FRAMES
+
+    def single_mask(self, half: np.ndarray, scale: float = 1.0) -> np.ndarray:
+        """uint8 (h, w): this frame's candidates by the frame alone, as the first frame is detected
+        (over the spatial background, cut to the spots that outshine their rings), at ``scale``
+        times the limit."""
+        base = cv2.convertScaleAbs(spatial_background(half, cell=self.cell, window=self.window))
+        level, noise = prominence_level(half, self.rings, cell=self.cell, window=self.noise_window)
+        limit = self._limit_map(noise, half.shape)
+        if scale != 1.0:
+            limit = cv2.convertScaleAbs(limit, alpha=scale)
+        mask = threshold_mask(half, base, limit)[0]
+        return prominent_only(mask, threshold_mask(half, level, limit)[0], max(self.rings[-1] // 2, 1))
 
     def learnt(self) -> bool:
         """True once the warm-up is over: static scene has been told apart from particles."""
