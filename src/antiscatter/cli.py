@@ -179,14 +179,18 @@ def build_parser() -> argparse.ArgumentParser:
                     "or your own annotated frames (a folder of images or a video file) with --truth CSV "
                     "(frame,x,y[,radius][,id]: frames numbered from 0 in order; or MOTChallenge gt.txt); "
                     "--degraded/--clean real image pairs (files or folders with equal names); --scenario NAME "
-                    "(generated in memory); --catalogue (every detector on every catalogued scenario and the "
-                    "real images: writes the scoreboard).",
+                    "(generated in memory); --heldout SPLIT (the held-out material: real photographs with particles "
+                    "of its own, dev to tune on and test to judge on; the detector and seed on every case); "
+                    "--catalogue (every detector on every catalogued scenario and the real images: writes the "
+                    "scoreboard).",
         epilog="Examples:\n"
                "  antiscatter evaluate --truth out/truth.csv --detections d.csv --json\n"
                "  antiscatter evaluate out --detector seed --plot pr.png\n"
                "  antiscatter evaluate dive.mkv --truth annotations.csv --min-gate 4 --track\n"
                "  antiscatter evaluate --degraded ../shared/data/msrb/174710351_task1.png "
                "--clean ../shared/data/msrb/174710351_orig.png\n"
+               "  antiscatter evaluate --heldout dev -p memory=0\n"
+               "  antiscatter evaluate --heldout both --heldout-export heldout/\n"
                "  antiscatter evaluate --catalogue --data ../shared/data --report docs/scoreboard.md",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     ev.add_argument("folder", nargs="?", metavar="SOURCE",
@@ -202,12 +206,24 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--scenario", help="a catalogued scenario, generated in memory")
     ev.add_argument("--catalogue", action="store_true", help="every detector on every scenario and real "
                     "image; writes the scoreboard (--report)")
+    ev.add_argument("--heldout", choices=("dev", "test", "both"), help="the held-out material (needs scikit-image: "
+                    "pip install 'antiscatter[eval]'): frames from real photographs with particles drawn by a "
+                    "renderer of their own; dev and test have disjoint photographs, seeds and particle mixtures "
+                    "(tune on dev only). Runs the detector and seed on every case; prints P / R / F1 per case and "
+                    "the detector's slowest frame over its median")
+    ev.add_argument("--heldout-frames", type=int, metavar="N", help="frames per held-out case (default: each "
+                    "case's own, 8-12); with --catalogue, 0 leaves the scoreboard's held-out table out")
+    ev.add_argument("--heldout-export", metavar="DIR", help="with --heldout: instead of scoring, write each case as "
+                    "DIR/<split>/<case>/: <frame>.png, truth.csv (frame,x,y,radius,id of the counted particles) and "
+                    "gt.txt (every particle, MOTChallenge, the uncounted ones not considered: '--truth gt.txt' "
+                    "scores as in memory)")
     ev.add_argument("--catalogue-file", metavar="FILE.toml", help="scenario catalogue (default: the packaged one)")
     ev.add_argument("--data", metavar="DIR", help="folder holding msrb/ real images (default ../shared/data "
                     "when it exists)")
     ev.add_argument("--report", metavar="FILE.md", default="docs/scoreboard.md", help="scoreboard path "
                     "(default docs/scoreboard.md)")
-    ev.add_argument("--frames", type=int, help="at most N frames per scenario or SOURCE")
+    ev.add_argument("--frames", type=int, help="at most N frames per scenario or SOURCE (--heldout: "
+                    "--heldout-frames)")
     ev.add_argument("--twin-frames", type=int, default=60, help="frames per closed-loop twin run for the "
                     "scoreboard's twin table (0 = leave it out; default 60)")
     ev.add_argument("--twin-seeds", type=int, default=3, help="scenes (seeds 1..N) the twin table averages "
@@ -441,10 +457,15 @@ def _evaluate(args: argparse.Namespace) -> int:
 
     csv_pair = bool(args.detections or (args.truth and not args.folder))  # scored as they are
     modes = [csv_pair, bool(args.folder), bool(args.degraded or args.clean), bool(args.scenario),
-             bool(args.catalogue)]
+             bool(args.catalogue), bool(args.heldout)]
     if sum(modes) != 1:
         raise UsageError("give exactly one input: --truth with --detections, a SOURCE (with --truth unless it "
-                         "is a simulator output folder), --degraded with --clean, --scenario NAME, or --catalogue")
+                         "is a simulator output folder), --degraded with --clean, --scenario NAME, --heldout SPLIT, "
+                         "or --catalogue")
+    if args.heldout_export and not args.heldout:
+        raise UsageError("--heldout-export goes with --heldout SPLIT (the split or splits to write)")
+    if args.heldout_frames is not None and not (args.heldout or args.catalogue):
+        raise UsageError("--heldout-frames goes with --heldout or --catalogue")
     if args.fps is not None and not (args.fps > 0 and np.isfinite(args.fps)):
         raise UsageError(f"--fps {args.fps}: allowed a positive number")
     if args.frames is not None and args.frames <= 0:
@@ -464,9 +485,9 @@ def _evaluate(args: argparse.Namespace) -> int:
         from .detection import DETECTORS
 
         version, scenarios = load_catalogue(args.catalogue_file)
-        data_dir = Path(args.data) if args.data else Path("../shared/data")
-        if args.data and not data_dir.is_dir():
-            raise UsageError(f"--data {data_dir}: no such folder")
+        data_dir = _data_dir(args)
+        if args.heldout_frames is not None and args.heldout_frames < 0:
+            raise UsageError(f"--heldout-frames {args.heldout_frames}: allowed >= 0 (0 leaves the table out)")
         real = msrb_pairs(data_dir / "msrb") if (data_dir / "msrb").is_dir() else []
         detectors = [args.detector] if args.detector else list(DETECTORS)
         if args.twin_frames < 0:
@@ -485,7 +506,9 @@ def _evaluate(args: argparse.Namespace) -> int:
                                     real_pairs=real, matching=m, bench_results=bench_results,
                                     frames_limit=args.frames, log=lambda t: print(t, file=sys.stderr),
                                     twin_frames=args.twin_frames, twin_seeds=args.twin_seeds,
-                                    twin_long_frames=args.twin_long_frames, twin_long_seeds=args.twin_long_seeds)
+                                    twin_long_frames=args.twin_long_frames, twin_long_seeds=args.twin_long_seeds,
+                                    heldout=args.heldout_frames != 0, heldout_frames=args.heldout_frames or None,
+                                    heldout_data=data_dir)
         report = Path(args.report)
         report.parent.mkdir(parents=True, exist_ok=True)
         report.write_text(markdown)
@@ -496,6 +519,8 @@ def _evaluate(args: argparse.Namespace) -> int:
     if args.track and not (args.scenario or args.folder):
         raise UsageError("--track goes with --scenario or a SOURCE (a detections CSV with track_id is scored for "
                          "tracking by itself)")
+    if args.heldout:
+        return _evaluate_heldout(args, m)
     if csv_pair:
         if not (args.truth and args.detections):
             raise UsageError("--truth and --detections go together")
@@ -575,6 +600,71 @@ def _evaluate(args: argparse.Namespace) -> int:
         if "prediction" in extra:
             print("  prediction error: " + ", ".join(
                 f"{k} frames {v['mean_px']:.2f} px (p95 {v['p95_px']:.2f})" for k, v in extra["prediction"].items()))
+    return 0
+
+
+def _data_dir(args: argparse.Namespace):
+    """The folder holding msrb/: ``--data`` (it must exist), else ../shared/data."""
+    from pathlib import Path
+
+    data_dir = Path(args.data) if args.data else Path("../shared/data")
+    if args.data and not data_dir.is_dir():
+        raise UsageError(f"--data {data_dir}: no such folder")
+    return data_dir
+
+
+def _evaluate_heldout(args: argparse.Namespace, m) -> int:
+    """``evaluate --heldout``: the detector and seed on the held-out material, or its export."""
+    import json
+    import time
+    from pathlib import Path
+
+    from .detection import make_detector
+    from .evaluate.heldout import SPLITS, cases, evaluate_heldout, export, require_skimage
+    from .evaluate.report import format_heldout
+
+    if args.frames is not None:
+        raise UsageError("--frames: with --heldout, give --heldout-frames (frames per case)")
+    for flag, value in (("--csv", args.csv), ("--plot", args.plot)):
+        if value:
+            raise UsageError(f"{flag}: does not go with --heldout (--json gives every case and frame time)")
+    if args.heldout_frames is not None and args.heldout_frames < 1:
+        raise UsageError(f"--heldout-frames {args.heldout_frames}: allowed >= 1 with --heldout")
+    splits = SPLITS if args.heldout == "both" else (args.heldout,)
+    data_dir = _data_dir(args)
+    require_skimage()
+    if args.heldout_export:
+        out = Path(args.heldout_export)
+        if out.exists() and not out.is_dir():
+            raise UsageError(f"--heldout-export {out}: is a file, expected a folder")
+        if not out.parent.is_dir():
+            raise UsageError(f"--heldout-export {out}: the folder {out.parent} does not exist")
+        for split in splits:
+            for case in cases(split):
+                if (out / split / case.name).exists():
+                    raise UsageError(f"--heldout-export {out}: {out / split / case.name} already exists; "
+                                     "allowed a new folder")
+        for split in splits:
+            written = export(split, out, frames=args.heldout_frames, data=data_dir)
+            print(f"wrote {len(written)} cases of held-out {split} to {out / split}: "
+                  + ", ".join(path.name for path in written))
+        return 0
+    name, params, detector = _detector_from(args)
+    detectors = {name: detector}
+    if name != "seed":
+        detectors["seed"] = make_detector("seed")
+    results = []
+    for split in splits:
+        start = time.perf_counter_ns()
+        result = evaluate_heldout(split, detectors, m, frames=args.heldout_frames, data=data_dir)
+        result["seconds"] = (time.perf_counter_ns() - start) / 1e9
+        results.append(result)
+    title = f"detector {name}" + (f" ({', '.join(args.param)})" if args.param else "") + " and seed"
+    if args.json:
+        print(json.dumps({"input": f"held-out {args.heldout}", "detector": name, "params": list(args.param),
+                          "matching": vars(m), "splits": results}, indent=2))
+    else:
+        print(format_heldout(results, title=title))
     return 0
 
 

@@ -15,7 +15,7 @@ import numpy as np
 from ..detection import DETECTORS, make_detector
 from .metrics import FrameScore, summarise
 
-__all__ = ["format_summary", "write_frame_csv", "plot_evaluation", "scoreboard"]
+__all__ = ["format_summary", "write_frame_csv", "plot_evaluation", "scoreboard", "format_heldout", "heldout_markdown"]
 
 _COLUMNS = (("precision", "precision", "{:.3f}"), ("recall", "recall", "{:.3f}"), ("f1", "F1", "{:.3f}"),
             ("centre_error_mean", "centre err (px)", "{:.2f}"), ("centre_error_p95", "p95 (px)", "{:.2f}"),
@@ -112,13 +112,93 @@ def _table(rows: list[dict[str, Any]], columns: list[tuple[str, str, str]]) -> l
     return lines
 
 
+def _heldout_columns(names: list[str]) -> list[tuple[str, str, str]]:
+    """Columns of the held-out tables: the case, then P / R / F1 of each detector, then the first
+    detector's slowest frame over its median frame (detection time)."""
+    columns = [("case", "case", ""), ("frames", "frames", "{}"), ("counted", "counted", "{}")]
+    for name in names:
+        columns += [(f"{name}:precision", f"{name} P", "{:.3f}"), (f"{name}:recall", f"{name} R", "{:.3f}"),
+                    (f"{name}:f1", f"{name} F1", "{:.3f}")]
+    return columns + [(f"{names[0]}:worst_over_median", f"{names[0]} worst/median time", "{:.1f}")]
+
+
+def _heldout_rows(result: dict[str, Any]) -> list[dict[str, Any]]:
+    """One flat row per case of an :func:`~antiscatter.evaluate.heldout.evaluate_heldout` result,
+    and one ("all") over the split's frames."""
+    rows = []
+    for case in result["cases"] + [{"case": "all", "frames": result["frames"], "counted": result["counted"],
+                                     "detectors": result["overall"]}]:
+        row = {"case": case["case"], "frames": case["frames"], "counted": case["counted"]}
+        for name, figures in case["detectors"].items():
+            row.update({f"{name}:{key}": figures[key] for key in ("precision", "recall", "f1", "worst_over_median")})
+        rows.append(row)
+    return rows
+
+
+def format_heldout(results: list[dict[str, Any]], *, title: str = "") -> str:
+    """A plain-text table per split of :func:`~antiscatter.evaluate.heldout.evaluate_heldout`
+    results (with "seconds": generating and scoring it, when known)."""
+    lines = [title] if title else []
+    for result in results:
+        names = list(result["overall"])
+        took = f"; generated and scored in {result['seconds']:.1f} s" if "seconds" in result else ""
+        lines.append(f"held-out {result['split']}: {len(result['cases'])} cases, {result['frames']} frames, "
+                     f"{result['counted']} counted particles; backgrounds {', '.join(result['backgrounds'])}{took}")
+        columns = _heldout_columns(names)
+        cells = [[label for _, label, _ in columns]]
+        cells += [[_fmt(row.get(key), pattern) if pattern else str(row.get(key, "")) for key, _, pattern in columns]
+                  for row in _heldout_rows(result)]
+        widths = [max(len(row[i]) for row in cells) for i in range(len(columns))]
+        for row in cells:
+            lines.append("  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(row, widths))))
+        lines.append("")
+    lines.append("worst/median time: the detector's slowest frame over its median frame in the case (all: the "
+                 "largest of the cases')")
+    return "\n".join(lines)
+
+
+def heldout_markdown(results: list[dict[str, Any]]) -> list[str]:
+    """Markdown lines: a table per split of :func:`~antiscatter.evaluate.heldout.evaluate_heldout` results."""
+    md: list[str] = []
+    for result in results:
+        md += ["", f"### {result['split']} ({', '.join(result['backgrounds'])})", ""]
+        md += _table(_heldout_rows(result), _heldout_columns(list(result["overall"])))
+    return md
+
+
+def _heldout_section(detectors: dict[str, Any], matching: Any, frames: int | None, data: Path | None,
+                     log: Callable[[str], None]) -> tuple[list[str], list[dict[str, Any]]]:
+    """The scoreboard's held-out section and its results (none without scikit-image)."""
+    from ..errors import UsageError
+    from .heldout import SPLITS, evaluate_heldout
+
+    md = ["", "## Held-out material (`antiscatter evaluate --heldout both`)", "",
+          "Frames built from real photographs (scikit-image's sample images and the MSRB photograph) with "
+          "particles drawn by a renderer of their own (not the simulator's sprites): spots, defocused discs, "
+          "rings, textured flakes, specks and sunlit flakes, with lit objects and lines that are not particles. "
+          "Dev and test have disjoint photographs, seeds and particle mixtures: tune on dev only; a change "
+          "that helps dev but not test is not kept (docs/decisions/002-heldout-material.md). Each case resets "
+          "the detector at its start. Counted: peak over the background above max(8, 4 x noise sigma) "
+          "grey levels, half its light in the frame. Worst/median time: the detector's slowest frame over its "
+          "median frame in the case (all: the largest of the cases')."]
+    try:
+        results = [evaluate_heldout(split, detectors, matching, frames=frames, data=data, log=log) for split in SPLITS]
+    except UsageError as exc:
+        return md + ["", f"Left out: {exc}."], []
+    return md + heldout_markdown(results), results
+
+
 def scoreboard(*, scenarios: dict[str, Any], catalogue_version: int, detectors: list[str],
                real_pairs: list[tuple[str, Path, Path]], matching: Any, bench_results: list[Any] | None,
                frames_limit: int | None = None, log: Callable[[str], None] = lambda s: None,
                tracking: bool = True, twin_frames: int = 0, twin_seeds: int = 3,
-               twin_long_frames: int = 0, twin_long_seeds: int = 6) -> tuple[str, dict]:
+               twin_long_frames: int = 0, twin_long_seeds: int = 6, heldout: bool = False,
+               heldout_frames: int | None = None, heldout_data: Path | None = None) -> tuple[str, dict]:
     """Run every detector on every scenario and real pair; return (markdown, data).
 
+    heldout: also every detector on the held-out dev and test material (needs scikit-image; the
+    section says so when it is missing), ``heldout_frames`` frames per case (None: each case's
+    own), ``heldout_data`` the folder holding the MSRB photograph;
     tracking: also the tracker's figures (default detector) on every scenario;
     twin_frames: also the closed-loop twin's table (0 = leave it out), each figure the mean over
     ``twin_seeds`` scenes (seeds 1..twin_seeds) with the range of backscatter removed;
@@ -157,6 +237,9 @@ def scoreboard(*, scenarios: dict[str, Any], catalogue_version: int, detectors: 
           "of max-channel |degraded - clean| > 20 of 3 px or more.", "", "## Accuracy", ""]
     md += _table(accuracy, columns)
     data = {"catalogue_version": catalogue_version, "matching": vars(matching), "accuracy": accuracy}
+    if heldout:
+        section, data["heldout"] = _heldout_section(built, matching, heldout_frames, heldout_data, log)
+        md += section
     if bench_results:  # one BenchResult per input (BGR frames, the luma plane)
         first = bench_results[0]
         md += ["", "## Latency (`antiscatter bench`)", "", f"Machine: {first.machine}; "
