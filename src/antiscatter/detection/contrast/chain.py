@@ -19,6 +19,7 @@ from .components import label, measure
 from .kernels import _disc
 from .model import BackgroundModel
 from .params import ContrastParams
+from .scales import coarse_particles, merge_scales
 from .working import UNLIT, _upper_light, _working_light, downsample, to_channel, working_factor
 
 
@@ -147,6 +148,11 @@ def build_contrast(params: ContrastParams) -> Detector:
                         max_radius=params.max_radius, split=params.split, frame_width=state.width,
                         factor=state.factor, lone_k=params.lone_k, seen=seen,
                         full=(state.grey, state.base), fine=state.frozen is None)
+        if params.coarse and state.frozen is None:
+            still = model.learnt() and not model.moving() and model.base is not None
+            found = merge_scales(found, coarse_particles(
+                reflectance, model.base if still else None, factor=state.factor, width=state.width, k=params.k,
+                min_contrast=params.min_contrast, core=params.core, halo=params.halo, max_radius=params.max_radius))
         state.learn = (reflectance, mask, state.frozen)
         return found
 

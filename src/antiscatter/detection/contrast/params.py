@@ -52,6 +52,9 @@ class ContrastParams:
     channel: the plane of a colour (BGR) frame the detector works on, one of CHANNELS (a grey or Y
         frame is used as it is; default ``luma``, the camera's Y: the colours' noise averages while
         a whitish particle adds to all; ``red`` or ``min`` suit sunlit blue-green water).
+    coarse: also look for wide, faint particles (defocused, near the lens) at a quarter of the
+        working resolution, and let them replace the fragments the working resolution broke them
+        into (default true; :mod:`~antiscatter.detection.contrast.scales`).
     """
 
     k: float = 4.0
@@ -70,6 +73,7 @@ class ContrastParams:
     texture: int = 28
     core: float = 0.5
     point: float = 0.15
+    coarse: bool = True
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.point) and 0 <= self.point <= 1):
