@@ -31,6 +31,9 @@ class Detections:
         Detector confidence or contrast; NaN where the detector has none.
     track_ids : (N,) int64 array, optional
         Track identity, -1 where untracked.
+    cut : int, optional
+        Candidates the detector's bound on its work per frame left out of this frame: particles
+        beyond its ceiling, clusters measured whole instead of split (0: nothing cut).
 
     Zero particles is length-0 arrays of the same shapes, never ``None``.
     """
@@ -39,6 +42,7 @@ class Detections:
     radii: np.ndarray
     scores: np.ndarray = field(default=None)  # type: ignore[assignment]
     track_ids: np.ndarray = field(default=None)  # type: ignore[assignment]
+    cut: int = 0
 
     def __post_init__(self) -> None:
         centres = np.asarray(self.centres, dtype=np.float64).reshape(-1, 2)
@@ -70,4 +74,4 @@ class Detections:
     def __getitem__(self, index) -> "Detections":
         """Select particles by boolean mask, index array or slice."""
         return Detections(self.centres[index], self.radii[index],
-                          self.scores[index], self.track_ids[index])
+                          self.scores[index], self.track_ids[index], self.cut)

@@ -80,9 +80,9 @@ def _worker(detector_name: str, params: Any, ring_spec: tuple | None, requests: 
             try:
                 image = ring.view(payload) if ring is not None else payload
                 found, stage_ns = time_stages(detector, image)
-                replies.put((index, found.centres, found.radii, found.scores, stage_ns))
+                replies.put((index, found.centres, found.radii, found.scores, found.cut, stage_ns))
             except BaseException as exc:  # noqa: BLE001 - reported to the main process
-                replies.put((index, "error", f"{type(exc).__name__}: {exc}", None, None))
+                replies.put((index, "error", f"{type(exc).__name__}: {exc}", None, 0, None))
                 return
     finally:
         if ring is not None:
@@ -124,7 +124,7 @@ class DetectorProcess:
     def receive(self, timeout: float = 0.05) -> tuple[int, Detections, list[int]] | None:
         """One result, or None when none arrived within ``timeout``; raises if the worker failed."""
         try:
-            index, centres, radii, scores, stage_ns = self.replies.get(timeout=timeout)
+            index, centres, radii, scores, cut, stage_ns = self.replies.get(timeout=timeout)
         except queue.Empty:
             if not self.process.is_alive():
                 raise RuntimeError(f"detector process died (exit code {self.process.exitcode})") from None
@@ -132,7 +132,7 @@ class DetectorProcess:
         self.in_flight -= 1
         if isinstance(centres, str):
             raise RuntimeError(f"detector process: {radii}")
-        return index, Detections(centres, radii, scores), stage_ns
+        return index, Detections(centres, radii, scores, cut=cut), stage_ns
 
     @property
     def full(self) -> bool:

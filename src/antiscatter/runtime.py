@@ -65,6 +65,7 @@ EXTRA_COLUMNS = (
     "End-to-end Latency (s)",
     "Dropped Frames",
     "Exposure Phase Error (s)",
+    "Candidates Cut",
 )
 
 
@@ -196,6 +197,8 @@ class RunSummary:
     dropped: int = 0
     period_ns: int = 0
     notes: list = field(default_factory=list)  # what the run found worth saying at its end
+    cut: int = 0  # candidates the detector's work bound left out, over the run
+    cut_frames: int = 0  # frames where it left any out
     # per-frame times as compact int64 arrays (8 bytes a frame), for percentiles and pacing
     output_times: array.array = field(default_factory=lambda: array.array("q"))
     latencies_ns: array.array = field(default_factory=lambda: array.array("q"))
@@ -478,7 +481,8 @@ class _Pipeline:
                 # adds noise: IDF1 fell by 0.005-0.016 on the scenarios)
                 self.detector.expect(prediction.holes(captured + self.frame_period))
             if self.probe is not None:  # this exposure's verdicts, then the next intervals to try
-                seen = Detections(detections.centres, detections.radii, detections.scores, tracks.detection_ids)
+                seen = Detections(detections.centres, detections.radii, detections.scores, tracks.detection_ids,
+                                  detections.cut)
                 coasting = tracks.confirmed & (tracks.misses > 0)
                 self.probe.observe(seen, self.shown_probes, tracks.ids[coasting], exposure=self.shown_exposure,
                                    coasting_centres=tracks.centres[coasting])
@@ -714,6 +718,9 @@ class _Pipeline:
             summary.durations[column].add(v)
         summary.particles.add(len(rec.detections))
         summary.frames += 1
+        if rec.detections.cut:
+            summary.cut += rec.detections.cut
+            summary.cut_frames += 1
         frame, detections = rec.frame, rec.detections
         if self.metrics_writer is not None:
             row, index_of = self.row, self.index_of
@@ -725,6 +732,7 @@ class _Pipeline:
             row[index_of["Frame"]] = frame.index
             row[index_of["Capture Timestamp (ns)"]] = frame.timestamp_ns
             row[index_of["Dropped Frames"]] = dropped
+            row[index_of["Candidates Cut"]] = detections.cut
             if self.phase_error_ns is not None:
                 row[index_of["Exposure Phase Error (s)"]] = f"{self.phase_error_ns / 1e9:.9f}"
             self.metrics_writer.writerow(row)
@@ -1316,6 +1324,10 @@ def _print_summary(summary: RunSummary, out: TextIO) -> None:
     print(f"frames: {summary.frames} ({summary.stop_reason}), dropped {summary.dropped}", file=out)
     for note in summary.notes:
         print(f"note: {note}", file=out)
+    if summary.cut:
+        print(f"note: the detector's bound on its work per frame left {summary.cut} candidates out in "
+              f"{summary.cut_frames} frames (the metrics CSV's 'Candidates Cut'): the view held more "
+              "than a frame can be given time for", file=out)
     if p.count:
         print(f"particles per frame: mean {p.mean:.1f}, min {p.min:.0f}, max {p.max:.0f}", file=out)
     print(summary.table(), file=out)

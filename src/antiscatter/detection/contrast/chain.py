@@ -15,13 +15,17 @@ import numpy as np
 from ...detections import Detections
 from .. import Detector, Stage
 from .background import NOISE_WINDOW, _near, _rings, prominent_only, threshold_mask
-from .components import label, measure
+from .components import brightest, label, measure
 from .kernels import _disc
 from .model import BackgroundModel
 from .params import ContrastParams
 from .scales import coarse_particles, merge_scales
 from .working import UNLIT, _upper_light, _working_light, downsample, to_channel, working_factor
 
+
+#: the split's bound on its work a frame, pixel-peak pairs per working pixel: 4 times the most
+#: any catalogued scene needs (the seed tank's clusters, 1.0), so no frame can make it run long
+SPLIT_BUDGET = 4
 
 #: share of the single-frame limit a candidate must clear in the frame alone while the view moves
 #: (the learnt background's own candidates are kept where the frame alone shows a spot); 0 = off
@@ -147,14 +151,15 @@ def build_contrast(params: ContrastParams) -> Detector:
         found = measure(components, excess, model.noise, halo=params.halo, core=params.core,
                         max_radius=params.max_radius, split=params.split, frame_width=state.width,
                         factor=state.factor, lone_k=params.lone_k, seen=seen,
-                        full=(state.grey, state.base), fine=state.frozen is None)
+                        full=(state.grey, state.base), fine=state.frozen is None,
+                        split_budget=int(SPLIT_BUDGET * mask.size))
         if params.coarse and state.frozen is None:
             still = model.learnt() and not model.moving() and model.base is not None
             found = merge_scales(found, coarse_particles(
                 reflectance, model.base if still else None, factor=state.factor, width=state.width, k=params.k,
                 min_contrast=params.min_contrast, core=params.core, halo=params.halo, max_radius=params.max_radius))
         state.learn = (reflectance, mask, state.frozen)
-        return found
+        return brightest(found, params.max_particles)
 
     def stage_update(found: Detections) -> Detections:
         """For the next frames: the background learns from this one, and where it was bright is kept."""

@@ -47,7 +47,8 @@ def label(mask: np.ndarray) -> Components:
 def measure(components: Components, excess: np.ndarray, noise: np.ndarray, *,
             halo: float, max_radius: float, split: bool, frame_width: int, factor: int = 2,
             lone_k: float = 0.0, seen: np.ndarray | None = None, core: float = 0.0,
-            full: tuple[np.ndarray, np.ndarray] | None = None, fine: bool = True) -> Detections:
+            full: tuple[np.ndarray, np.ndarray] | None = None, fine: bool = True,
+            split_budget: int = 0) -> Detections:
     """Centres (brightness-weighted), covering radii and scores of the components; centres and
     radii in full-resolution pixels.
 
@@ -70,6 +71,9 @@ def measure(components: Components, excess: np.ndarray, noise: np.ndarray, *,
     3 px apart (6 at full resolution), which took two particles that close for one.  The
     detector splits coarsely while its own pattern is on the scene: there the edge of a
     hole crossing a particle is a dip in its light.  Figures: docs/decisions/001-contrast-tuning.md.
+
+    split_budget: the split's bound on its work (see :func:`_split_peaks`; 0 = none); the
+    components it left whole are counted in the detections' ``cut``.
     """
     n = components["count"]
     if n == 0:
@@ -81,10 +85,11 @@ def measure(components: Components, excess: np.ndarray, noise: np.ndarray, *,
     weight = np.maximum(_gather(excess, flat).astype(np.float64), 1e-3)
     area = np.bincount(lab, minlength=n)
     (peak,) = _group_max(lab, n, weight)
+    cut = 0
     if split:
         unsplit = lab
-        lab, n = _split_peaks(lab, x, y, weight, excess, noise, n, full=full if factor == 2 else None,
-                              fine=fine, area=area, peak=peak, flat=flat)
+        lab, n, cut = _split_peaks(lab, x, y, weight, excess, noise, n, full=full if factor == 2 else None,
+                                   fine=fine, area=area, peak=peak, flat=flat, budget=split_budget)
         if lab is not unsplit:
             area = np.bincount(lab, minlength=n)
             (peak,) = _group_max(lab, n, weight)
@@ -112,4 +117,14 @@ def measure(components: Components, excess: np.ndarray, noise: np.ndarray, *,
             if seen is not None:
                 strong |= seen[py, px] > 0
             keep[lone] &= strong
-    return Detections(centres[keep], radii[keep], scores=wsum[keep])
+    return Detections(centres[keep], radii[keep], scores=wsum[keep], cut=cut)
+
+
+def brightest(found: Detections, limit: int) -> Detections:
+    """At most ``limit`` particles (0 = no ceiling): the brightest by score (flux), in their order;
+    the rest are added to ``cut``."""
+    if not limit or len(found) <= limit:
+        return found
+    keep = np.sort(np.argsort(-found.scores, kind="stable")[:limit])
+    kept = found[keep]
+    return Detections(kept.centres, kept.radii, kept.scores, kept.track_ids, found.cut + len(found) - limit)

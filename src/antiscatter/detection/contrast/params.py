@@ -55,6 +55,9 @@ class ContrastParams:
     coarse: also look for wide, faint particles (defocused, near the lens) at a quarter of the
         working resolution, and let them replace the fragments the working resolution broke them
         into (default true; :mod:`~antiscatter.detection.contrast.scales`).
+    max_particles: the most particles a frame reports, the brightest kept; what is left out is
+        counted in the detections' ``cut`` (default 4096: over four times the densest catalogued
+        scene's 874, and it bounds the tracker's and the pattern's work too; 0 = no ceiling).
     """
 
     k: float = 4.0
@@ -74,6 +77,7 @@ class ContrastParams:
     core: float = 0.5
     point: float = 0.15
     coarse: bool = True
+    max_particles: int = 4096
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.point) and 0 <= self.point <= 1):
@@ -102,5 +106,7 @@ class ContrastParams:
             raise ValueError(f"persist_radius: got {self.persist_radius}, allowed 0..64 (0 = off)")
         if not (math.isfinite(self.lone_k) and self.lone_k >= 0):
             raise ValueError(f"lone_k: got {self.lone_k}, allowed >= 0 (0 = off)")
+        if self.max_particles < 0:
+            raise ValueError(f"max_particles: got {self.max_particles}, allowed >= 0 (0 = no ceiling)")
         if not self.max_radius > 0:
             raise ValueError(f"max_radius: got {self.max_radius}, allowed > 0")

@@ -73,11 +73,12 @@ def merge_scales(fine: Detections, coarse: Detections) -> Detections:
     """The working resolution's detections with the coarse scale's: a coarse particle holding no
     fine detection within its radius is added; one holding ``ABSORB`` or more within
     ``ABSORB_REACH`` of its radius, with less than ``ABSORB_FLUX`` of its light (scores: flux in
-    working pixels), replaces them; otherwise the fine ones stand."""
+    working pixels), replaces them; otherwise the fine ones stand.  The fine detections' ``cut``
+    carries over."""
     if len(coarse) == 0:
         return fine
     if len(fine) == 0:
-        return coarse
+        return Detections(coarse.centres, coarse.radii, coarse.scores, cut=fine.cut)
     d2 = ((coarse.centres[:, None, :] - fine.centres[None, :, :]) ** 2).sum(-1)
     inside = d2 < (ABSORB_REACH * coarse.radii[:, None]) ** 2
     held = (inside * fine.scores[None, :]).sum(1)  # the light of the detections it holds
@@ -89,4 +90,4 @@ def merge_scales(fine: Detections, coarse: Detections) -> Detections:
         return kept_fine
     return Detections(np.concatenate([kept_fine.centres, added.centres]),
                       np.concatenate([kept_fine.radii, added.radii]),
-                      np.concatenate([kept_fine.scores, added.scores]))
+                      np.concatenate([kept_fine.scores, added.scores]), cut=fine.cut)

@@ -47,7 +47,7 @@ _BLOCK_Y = np.array([0, 0, 1, 1])
 def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, excess: np.ndarray,
                  noise: np.ndarray, n: int, full: tuple[np.ndarray, np.ndarray] | None = None,
                  fine: bool = True, area: np.ndarray | None = None, peak: np.ndarray | None = None,
-                 flat: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+                 flat: np.ndarray | None = None, budget: int = 0) -> tuple[np.ndarray, int, int]:
     """Split components that hold two or more particles (touching or overlapping).
 
     Within each component of 8 pixels or more, the local maxima (3x3) of the
@@ -66,13 +66,17 @@ def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarr
     the core (a neck at least a quarter narrower than the smaller disc; at full
     resolution when ``full`` is given, see :func:`_split_flat`).  Pixels go to
     the nearest kept peak of their component.  ``area`` (pixels) and ``peak`` (highest weight) of
-    each component, and ``flat`` (the pixels' raveled indices), when known.  Returns ``lab`` itself
-    when nothing was split.
+    each component, and ``flat`` (the pixels' raveled indices), when known.
+
+    budget: the most work the split may do, in pixel-peak pairs (each component costs its pixels
+    times its candidate peaks); 0 = no bound.  Over it, the components that cost least are split
+    and the rest measured whole.  Returns (labels -- ``lab`` itself when nothing was split --,
+    components, components left whole for the budget).
     """
     area = np.bincount(lab, minlength=n) if area is None else area
     inside = area[lab] >= 8
     if not inside.any():
-        return lab, n
+        return lab, n, 0
     idx = np.flatnonzero(inside)
     px, py, pl = x[idx], y[idx], lab[idx]
     pf = py * excess.shape[1] + px if flat is None else flat[idx]
@@ -95,6 +99,9 @@ def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarr
                     & (bx > 0) & (bx < w - 1) & (by > 0) & (by < h - 1)]
         is_max[bump[_spots(excess, pf[bump])]] = True
     maxima = np.bincount(pl[is_max], minlength=n)
+    crowded = _over_budget(np.where(maxima >= 2, area * maxima, 0), budget)
+    if crowded.any():  # measured whole: no peaks, no shape test
+        maxima[crowded] = 0
     peaks = np.flatnonzero(is_max & (maxima[pl] >= 2))
     kept_c, kept_y, kept_x = _separate(pl[peaks], py[peaks], px[peaks], s[peaks].astype(np.float64) / weights,
                                        excess, noise_at(noise, px[peaks], py[peaks], excess.shape), min_d2=min_d2)
@@ -102,6 +109,7 @@ def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarr
     shaped = counts < 2  # the components whose shape is looked at: those the intensity did not split,
     if fine:  # and flat ones, whose intensity maxima are where pooling cut their plateau's edges
         shaped |= np.bincount(pl[pw >= _PLATEAU_SHARE * top[pl]], minlength=n) >= _PLATEAU
+    shaped &= ~crowded
     necked, nearly = _necked(pl, px, py, pw, n, shaped, peak=top)
     if len(necked) or len(nearly):
         flat_c, flat_y, flat_x = _split_flat(pl, px, py, pw, n, np.concatenate([necked, nearly]), full,
@@ -115,8 +123,9 @@ def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarr
             kept_x = np.concatenate([kept_x[keep], flat_x])
     counts = np.bincount(kept_c, minlength=n)
     split = counts >= 2
+    unsplit = int(crowded.sum())
     if not split.any():
-        return lab, n
+        return lab, n, unsplit
     sel = np.flatnonzero(split[kept_c])
     kc, ky, kx = kept_c[sel], kept_y[sel], kept_x[sel]
     order = np.argsort(kc, kind="stable")
@@ -137,7 +146,19 @@ def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarr
     new_base = n + np.concatenate([[0], np.cumsum(counts[comps] - 1)[:-1]])  # first new label per component
     lab = lab.copy()
     lab[pixels] = np.where(nearest == 0, lab[pixels], new_base[r] + nearest - 1)
-    return lab, n + int((counts[comps] - 1).sum())
+    return lab, n + int((counts[comps] - 1).sum()), unsplit
+
+
+def _over_budget(cost: np.ndarray, budget: int) -> np.ndarray:
+    """bool per component: left out of work of ``cost`` each (0 = none to do) so that what is done
+    stays within ``budget`` (0 = no bound), the cheapest done first."""
+    total = int(cost.sum())
+    if not budget or total <= budget:
+        return np.zeros(len(cost), bool)
+    order = np.argsort(cost, kind="stable")
+    out = np.zeros(len(cost), bool)
+    out[order[np.cumsum(cost[order]) > budget]] = True
+    return out & (cost > 0)
 
 
 def _nearest_peak(x: np.ndarray, y: np.ndarray, row: np.ndarray, held: np.ndarray, tx: np.ndarray,
