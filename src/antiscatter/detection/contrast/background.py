@@ -8,6 +8,8 @@ The learnt, per-pixel background that takes over when frames follow each other i
 
 from __future__ import annotations
 
+import functools
+
 import cv2
 import numpy as np
 
@@ -38,12 +40,16 @@ def spatial_background(half: np.ndarray, *, cell: int, window: int = 0) -> np.nd
     return coarse.astype(np.float32, copy=False)
 
 
+@functools.lru_cache(maxsize=64)
 def _ring(radius: int, width: int = 2) -> np.ndarray:
-    """uint8 kernel: the pixels at distance [radius, radius + width) from the centre."""
+    """uint8 kernel: the pixels at distance [radius, radius + width) from the centre (made once per
+    radius: read-only, shared)."""
     r = radius + width
     y, x = np.mgrid[-r:r + 1, -r:r + 1]
     d = np.hypot(x, y)
-    return ((d >= radius) & (d < radius + width)).astype(np.uint8)
+    ring = ((d >= radius) & (d < radius + width)).astype(np.uint8)
+    ring.flags.writeable = False
+    return ring
 
 
 def _rings(texture: int) -> tuple[int, ...]:
