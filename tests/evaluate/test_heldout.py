@@ -9,8 +9,9 @@ import pytest
 pytest.importorskip("skimage")
 
 from antiscatter.detection import make_detector  # noqa: E402
-from antiscatter.evaluate.heldout import (BACKGROUNDS, MODELS, Case, cases, evaluate_case,  # noqa: E402
-                                          export_case, light_truth, render_particle, render_still)
+from antiscatter.evaluate.heldout import (BACKGROUNDS, MODELS, Case, _Particle, _render, _Sensor,  # noqa: E402
+                                          _View, cases, evaluate_case, export_case, light_truth, local_spread,
+                                          particle_shape, render_particle, render_still)
 from antiscatter.evaluate.metrics import score_frame  # noqa: E402
 from antiscatter.evaluate.report import format_heldout, heldout_markdown  # noqa: E402
 from antiscatter.evaluate.runs import Matching  # noqa: E402
@@ -86,6 +87,65 @@ def test_truth_centres_land_on_the_rendered_light():
     assert checked > 20
 
 
+def _on(grey, particles):
+    """One noisy frame of ``particles`` (:class:`_Particle`) over an (H, W) grey background, sunlit (no cone)."""
+    radiance = np.repeat(grey.astype(np.float32)[..., None], 3, axis=2)
+    view = _View("flat", radiance, np.zeros(grey.shape, np.float32), np.zeros(3, np.float32))
+    lighting = (np.ones(grey.shape, np.float32), None)
+    distractors = np.zeros(grey.shape, bool)
+    return _render(0, radiance, distractors, view, lighting, particles, _Sensor(2.0, 0.05, 0),
+                   np.random.default_rng(0))
+
+
+def test_local_spread_is_the_robust_spread_around_the_particle():
+    flat = np.full((100, 120), 80.0, np.float32)
+    assert local_spread(flat, 60, 50, 3.0) == 0.0
+    noise = 80 + 10 * np.random.default_rng(1).standard_normal((100, 120)).astype(np.float32)
+    assert local_spread(noise, 60, 50, 5.0) == pytest.approx(10, rel=0.15)  # 21 x 21 px: h = 2 x radius
+    # the window: a bright block 6 px from the centre is outside it for a small particle (at least 9 x 9
+    # px), inside it for a large one, where it covers under half the window and a robust spread ignores it
+    blocked = noise.copy()
+    blocked[:, 66:] = 250
+    assert local_spread(blocked, 60, 50, 1.0) == pytest.approx(local_spread(noise, 60, 50, 1.0))
+    assert local_spread(blocked, 60, 50, 10.0) < 30 < float(blocked[30:71, 40:81].std())
+    # cut by the frame's edges; outside it
+    assert local_spread(noise, 0, 0, 5.0) == pytest.approx(10, rel=0.3)
+    assert local_spread(noise, -50, -50, 5.0) == 0.0
+
+
+def test_a_particle_is_counted_against_its_surroundings():
+    spot = _Particle(1, MODELS.index("spot"), 60.0, 50.0, 0.0, 0.0, 1.5, 20.0, 1.0, {})
+    flat = _on(np.full((100, 120), 80.0), [spot])
+    assert flat.truth.counted.tolist() == [True] and flat.peaks[0] == pytest.approx(20, rel=0.02)
+    assert flat.clutter[0] == 0.0
+    assert flat.thresholds[0] == pytest.approx(4 * np.sqrt(2.0 ** 2 + 0.05 * 80))  # the noise, 11.3
+    # the same particle on a texture of spread 30: as bright, not counted
+    texture = np.clip(80 + 30 * np.random.default_rng(2).standard_normal((100, 120)), 0, 255)
+    busy = _on(texture, [spot])
+    assert busy.peaks[0] == pytest.approx(flat.peaks[0], abs=1e-4)
+    assert busy.clutter[0] == pytest.approx(local_spread(texture.astype(np.float32), 60, 50, busy.truth.radii[0]))
+    assert busy.clutter[0] == pytest.approx(30, rel=0.15)
+    assert busy.thresholds[0] == busy.clutter[0] and busy.truth.counted.tolist() == [False]
+    np.testing.assert_array_equal(busy.truth.centres, flat.truth.centres)  # still in the truth, not considered
+    # twice as bright, it stands out of the same texture
+    bright = _Particle(1, MODELS.index("spot"), 60.0, 50.0, 0.0, 0.0, 1.5, 60.0, 1.0, {})
+    assert _on(texture, [bright]).truth.counted.tolist() == [True]
+
+
+def test_a_sunlit_flake_is_judged_by_what_it_changes_in_the_frame():
+    shape = particle_shape("sunlit", 3.0, np.random.default_rng(3))
+    first = _Particle(1, MODELS.index("sunlit"), 60.0, 50.0, 0.0, 0.0, 3.0, 200.0, 0.5, shape)
+    second = _Particle(2, MODELS.index("sunlit"), 60.0, 50.0, 0.0, 0.0, 3.0, 200.0, 0.5, shape)
+    alone = _on(np.full((100, 120), 120.0), [first])
+    assert alone.peaks.tolist() == pytest.approx([0.5 * (200 - 120)], rel=0.01)  # opacity x (flake - background)
+    assert alone.truth.counted.tolist() == [True]
+    # over another flake: only what it adds to the first one's light
+    both = _on(np.full((100, 120), 120.0), [first, second])
+    assert both.peaks.tolist() == pytest.approx([40, 0.5 * (200 - 160)], rel=0.01)
+    # a whitish flake on a brighter background darkens it: no light added, not in the truth
+    assert len(_on(np.full((100, 120), 230.0), [first]).truth.radii) == 0
+
+
 def test_faint_particles_are_not_counted():
     peaks, thresholds, counted = [], [], []
     for frame in Case("f", "test", "lamp", (320, 240), 6, 4).render():
@@ -93,7 +153,7 @@ def test_faint_particles_are_not_counted():
         thresholds += frame.thresholds.tolist()
         counted += frame.truth.counted.tolist()
     peaks, thresholds, counted = np.array(peaks), np.array(thresholds), np.array(counted)
-    assert (thresholds >= 8).all()
+    assert (thresholds >= 8).all() and (frame.thresholds >= frame.clutter).all()
     assert (peaks[counted] > thresholds[counted]).all()
     assert (~counted).sum() > 5 and (peaks <= thresholds).sum() > 5  # the lamp off leaves many unseen
     assert ((peaks <= thresholds) <= ~counted).all()
@@ -104,6 +164,18 @@ def test_faint_particles_are_not_counted():
     assert faint.any()
     score = score_frame(0, t.centres, t.radii, t.counted, t.centres[faint], t.radii[faint])
     assert (score.tp, score.fp, score.fn) == (0, 0, int(t.counted.sum()))
+
+
+def test_particles_lost_in_the_texture_are_not_counted():
+    # sunlit grass, as test stills-1456 frame 2: bright, busy texture (local spread about 20-30 grey levels)
+    frame = render_still(np.random.default_rng(0), (480, 360), background="grass", split="test", lighting="sun",
+                         particles=100)
+    counted = frame.truth.counted
+    assert (frame.thresholds >= np.maximum(frame.clutter, 8)).all()
+    assert (frame.peaks[counted] > frame.thresholds[counted]).all()
+    lost = (frame.peaks > 20) & (frame.peaks <= frame.clutter)  # well over the noise, not over the clutter
+    assert lost.sum() > 10 and not counted[lost].any()
+    assert 0.3 < counted.mean() < 0.9
 
 
 def test_distractors_are_never_truth():
@@ -123,6 +195,11 @@ def test_export_scores_as_in_memory(tmp_path, cli):
     folder = export_case(case, tmp_path / "pan-small")
     assert sorted(p.name for p in folder.iterdir()) == ["0.png", "1.png", "2.png", "3.png", "case.json", "gt.txt",
                                                         "truth.csv"]
+    truths = [truth for _, _, truth in case.frames()]
+    flags = [line.split(",")[6] for line in (folder / "gt.txt").read_text().splitlines()]
+    assert flags.count("1") == sum(int(t.counted.sum()) for t in truths) == memory["tp"] + memory["fn"]
+    assert flags.count("0") == sum(int((~t.counted).sum()) for t in truths) > 0  # kept, not considered
+    assert len((folder / "truth.csv").read_text().splitlines()) == 1 + flags.count("1")
     result = cli("evaluate", str(folder), "--truth", str(folder / "gt.txt"), "--json")
     assert result.code == 0, result.err
     overall = json.loads(result.out)["overall"]

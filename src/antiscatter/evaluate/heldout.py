@@ -30,8 +30,8 @@ from .runs import Matching
 from .tables import FrameTruth
 
 __all__ = ["SPLITS", "KINDS", "MODELS", "BACKGROUNDS", "MIXTURES", "MSRB_PHOTO", "Case", "HeldoutFrame",
-           "cases", "require_skimage", "particle_shape", "render_particle", "light_truth", "render_still",
-           "evaluate_case", "evaluate_heldout", "export_case", "export"]
+           "cases", "require_skimage", "particle_shape", "render_particle", "light_truth", "local_spread",
+           "render_still", "evaluate_case", "evaluate_heldout", "export_case", "export"]
 
 SPLITS = ("dev", "test")
 #: sequence kinds: unrelated stills; a camera panning over one view; a video cutting to another
@@ -65,11 +65,16 @@ _PARTICLE_BGR = np.array([1.0, 1.0, 0.92], np.float32) / float(_LUMA @ np.array(
 _FLAKE_BGR = np.array([1.0, 1.0, 0.95], np.float32) / float(_LUMA @ np.array([1.0, 1.0, 0.95], np.float32))
 #: width the particle radii are given for (discs scale with width / this)
 _REFERENCE_WIDTH = 1456
-#: a particle is counted when its peak exceeds max(_MIN_PEAK, _NOISE_UNITS x the noise sigma)
-#: and at least _MIN_INSIDE of its light falls inside the frame
+#: a particle is counted when its peak exceeds max(_MIN_PEAK, _NOISE_UNITS x the noise sigma,
+#: _VISIBILITY x the clutter: the local spread of the particle-free frame around it, :func:`local_spread`)
+#: and at least _MIN_INSIDE of its light falls inside the frame (docs/decisions/002-heldout-material.md)
 _MIN_PEAK = 8.0
 _NOISE_UNITS = 4.0
+_VISIBILITY = 1.0
 _MIN_INSIDE = 0.5
+#: the clutter's window: (2 h + 1) px square, h = max(_MIN_HALF, _SURROUND x the particle's radius)
+_SURROUND = 2.0
+_MIN_HALF = 4
 
 
 def require_skimage() -> Any:
@@ -273,6 +278,31 @@ def light_truth(x0: int, y0: int, light: np.ndarray, size: tuple[int, int] | Non
     half = light >= 0.5 * peak
     radius = max(1.0, float(np.hypot(xs[half] - cx, ys[half] - cy).max()) + 0.5)
     return x0 + cx, y0 + cy, radius, peak, seen / total
+
+
+def local_spread(background: np.ndarray, x: float, y: float, radius: float) -> float:
+    """The clutter a particle is seen against: 1.4826 x the median absolute deviation (a robust
+    standard deviation) of the particle-free frame in a window around it.
+
+    Parameters
+    ----------
+    background : (H, W) grey levels of the frame without particles or noise (view x lighting).
+    x, y : the particle's centre, pixels.
+    radius : its half-maximum extent, pixels; the window is (2 h + 1) px square, h = max(4, ceil(2 x
+        radius)), cut by the frame's edges.
+
+    Returns
+    -------
+    The spread, grey levels (0 on a flat background; 0 when the window is outside the frame).
+    """
+    height, width = background.shape
+    half = max(_MIN_HALF, int(np.ceil(_SURROUND * radius)))
+    col, row = int(round(x)), int(round(y))
+    window = background[max(row - half, 0):max(min(row + half + 1, height), 0),
+                        max(col - half, 0):max(min(col + half + 1, width), 0)]
+    if window.size == 0:
+        return 0.0
+    return 1.4826 * float(np.median(np.abs(window - np.median(window))))
 
 
 @dataclass
@@ -498,8 +528,11 @@ class HeldoutFrame:
     image: (H, W, 3) uint8 BGR.
     truth: every particle (centres (N, 2) px, radii (N,) px, counted (N,), ids (N,); labels -1).
     models: (N,) int index into ``MODELS``.
-    peaks: (N,) the particle's peak added light over the background, grey levels, after saturation.
-    thresholds: (N,) the peak it needs to be counted: max(8, 4 x the noise sigma there), grey levels.
+    peaks: (N,) the particle's peak added light over the background, grey levels, after saturation
+        (a sunlit flake: the frame minus the background where the flake adds most).
+    clutter: (N,) the local spread of the particle-free frame around it (:func:`local_spread`), grey levels.
+    thresholds: (N,) the peak it needs to be counted: max(8, 4 x the noise sigma there, the clutter),
+        grey levels.
     light: (H, W) float32 noise-free light added by the additive particles, grey levels.
     distractors: (H, W) bool pixels of the things that are not particles.
     background: the photograph's name.
@@ -510,6 +543,7 @@ class HeldoutFrame:
     truth: FrameTruth
     models: np.ndarray
     peaks: np.ndarray
+    clutter: np.ndarray
     thresholds: np.ndarray
     light: np.ndarray
     distractors: np.ndarray
@@ -539,9 +573,11 @@ def _render(index: int, radiance: np.ndarray, distractors: np.ndarray, view: _Vi
         under[pr, pc] = grey[fr, fc]
         if name == "sunlit":
             alpha = patch * np.float32(p.alpha * p.flicker)
-            added = alpha * (np.float32(p.peak) - under)  # grey levels over the background, may be negative
+            added = alpha * (np.float32(p.peak) - under)  # outside the frame: only for the share inside
             a = alpha[pr, pc][..., None]
+            before = image[fr, fc] @ _LUMA
             image[fr, fc] = image[fr, fc] * (1 - a) + a * (np.float32(p.peak) * _FLAKE_BGR)
+            added[pr, pc] = image[fr, fc] @ _LUMA - before  # what the flake changes in the frame, may be negative
         else:
             at = (min(max(int(round(p.y)), 0), height - 1), min(max(int(round(p.x)), 0), width - 1))
             gain = 1.0 if particle_field is None else float(particle_field[at])
@@ -556,8 +592,10 @@ def _render(index: int, radiance: np.ndarray, distractors: np.ndarray, view: _Vi
         k = np.unravel_index(int(np.argmax(seen_in)), seen_in.shape)
         peak = float(seen_in[k])
         sigma = float(np.sqrt(sensor.read ** 2 + sensor.shot * max(float(under[k]), 0.0)))
-        threshold = max(_MIN_PEAK, _NOISE_UNITS * sigma)
-        rows.append((cx, cy, radius, peak > threshold and inside >= _MIN_INSIDE, p.ident, p.model, peak, threshold))
+        clutter = local_spread(grey, cx, cy, radius)
+        threshold = max(_MIN_PEAK, _NOISE_UNITS * sigma, _VISIBILITY * clutter)
+        rows.append((cx, cy, radius, peak > threshold and inside >= _MIN_INSIDE, p.ident, p.model, peak, clutter,
+                     threshold))
     image += light[..., None] * _PARTICLE_BGR
     sigma = np.sqrt(np.float32(sensor.read ** 2) + np.float32(sensor.shot) * np.maximum(image, 0))
     image += rng.standard_normal(image.shape, dtype=np.float32) * sigma
@@ -569,8 +607,8 @@ def _render(index: int, radiance: np.ndarray, distractors: np.ndarray, view: _Vi
     table = np.array([r[:3] for r in rows], np.float64).reshape(n, 3)
     truth = FrameTruth(table[:, :2], table[:, 2], np.array([r[3] for r in rows], bool),
                        np.full(n, -1, np.int64), np.array([r[4] for r in rows], np.int64))
-    return HeldoutFrame(index, out, truth, np.array([r[5] for r in rows], np.int64),
-                        np.array([r[6] for r in rows], np.float64), np.array([r[7] for r in rows], np.float64),
+    peaks, clutter, thresholds = (np.array([r[c] for r in rows], np.float64) for c in (6, 7, 8))
+    return HeldoutFrame(index, out, truth, np.array([r[5] for r in rows], np.int64), peaks, clutter, thresholds,
                         light, distractors, view.name)
 
 

@@ -178,9 +178,10 @@ def _heldout_section(detectors: dict[str, Any], matching: Any, frames: int | Non
           "rings, textured flakes, specks and sunlit flakes, with lit objects and lines that are not particles. "
           "Dev and test have disjoint photographs, seeds and particle mixtures: tune on dev only; a change "
           "that helps dev but not test is not kept (docs/decisions/002-heldout-material.md). Each case resets "
-          "the detector at its start. Counted: peak over the background above max(8, 4 x noise sigma) "
-          "grey levels, half its light in the frame. Worst/median time: the detector's slowest frame over its "
-          "median frame in the case (all: the largest of the cases')."]
+          "the detector at its start. Counted: peak over the background above max(8, 4 x noise sigma, the "
+          "local spread of the particle-free frame around it) grey levels, half its light in the frame. "
+          "Worst/median time: the detector's slowest frame over its median frame in the case (all: the "
+          "largest of the cases')."]
     try:
         results = [evaluate_heldout(split, detectors, matching, frames=frames, data=data, log=log) for split in SPLITS]
     except UsageError as exc:
