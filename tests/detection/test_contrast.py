@@ -343,8 +343,9 @@ def test_the_background_follows_the_cameras_exposure(follow_gain, monkeypatch):
         counts.append(len(detector.detect(np.rint(frame).astype(np.uint8))))
     if follow_gain:
         assert max(counts[18:]) <= 24 and min(counts[18:]) >= 18  # the 20 particles, a few more at most
-    else:
-        assert max(counts[20:]) > 200
+    else:  # the learnt background stops fitting and gives way (restarted, the frame alone vetting it
+        # while young): worse than following the exposure, but no longer every pixel of the ground
+        assert 24 < max(counts[20:]) <= 80
 
 
 def test_exposure_following_on_black_frames_under_a_lit_background():

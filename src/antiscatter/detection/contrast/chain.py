@@ -28,6 +28,7 @@ from .working import UNLIT, _upper_light, _working_light, downsample, to_channel
 SPLIT_BUDGET = 4
 
 #: share of the single-frame limit a candidate must clear in the frame alone while the view moves
+#: or the model is young (``BackgroundModel.YOUNG``)
 #: (the learnt background's own candidates are kept where the frame alone shows a spot); 0 = off
 MOVING_SCALE = 0.5
 
@@ -123,10 +124,11 @@ def build_contrast(params: ContrastParams) -> Detector:
             # a single frame's candidates cut to what stands out; the model learns from the cut mask,
             # so the texture the cut left out is learnt as background from this frame on
             mask = prominent_only(mask, prominent, max(model.rings[-1] // 2, 1))
-        elif MOVING_SCALE and state.frozen is None and model.rings and model.moving():
-            # while the view moves the learnt background is resampled and lags: a candidate must
-            # also stand out in the frame alone (at MOVING_SCALE of its limit), as texture a follow
-            # left misregistered does not
+        elif MOVING_SCALE and state.frozen is None and model.rings and (model.moving() or model.young()):
+            # while the view moves the learnt background is resampled and lags, and in its first
+            # frames it still holds much of the spatial start: a candidate must also stand out in
+            # the frame alone (at MOVING_SCALE of its limit), as texture a follow left misregistered,
+            # or not yet learnt, does not
             cv2.bitwise_and(mask, cv2.dilate(model.single_mask(half, MOVING_SCALE), None), dst=mask)
         expected, state.expected = state.expected, None  # for this frame only
         if expected is not None and len(expected) and params.k_expected < params.k:

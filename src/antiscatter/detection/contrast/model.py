@@ -75,6 +75,8 @@ class BackgroundModel(ViewFollowing):
     #: each frame learnt after it, for the pixels where no particle was found: 0, the first
     #: learnt frame takes its place (on textured ground the spatial start is off by the texture)
     START_WEIGHT = 0.0
+    #: frames after a (re)start during which the frame alone vets the learnt background's candidates
+    YOUNG = 4
     #: frames after a (re)start during which every band learns every frame, so the first
     #: frames' static scene is absorbed in PERSIST / 2 frames (at least 2)
     WARMUP = 16
@@ -250,6 +252,11 @@ class BackgroundModel(ViewFollowing):
             limit = cv2.convertScaleAbs(limit, alpha=scale)
         mask = threshold_mask(half, base, limit)[0]
         return prominent_only(mask, threshold_mask(half, level, limit)[0], max(self.rings[-1] // 2, 1))
+
+    def young(self) -> bool:
+        """True for the first ``YOUNG`` frames after a (re)start: the learnt background still holds
+        much of the spatial start, and the frame alone vets its candidates."""
+        return self._frames < self.YOUNG
 
     def learnt(self) -> bool:
         """True once the warm-up is over: static scene has been told apart from particles."""

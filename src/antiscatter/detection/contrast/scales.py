@@ -31,12 +31,10 @@ COARSE_WINDOW = 24
 COARSE_MIN_RADIUS = 6.0
 #: a coarse detection holding this many working-resolution detections within ABSORB_REACH of its
 #: radius is one wide particle the working resolution broke up (a ring, a textured flake, a
-#: defocused disc whose noise looked like several peaks): it replaces them
-ABSORB = 3
+#: defocused disc whose noise looked like several peaks): it replaces them (three touching discs
+#: stay three)
+ABSORB = 4
 ABSORB_REACH = 0.8
-#: ... and only when those detections hold less than this share of its light: touching particles
-#: are each found whole, halo and all, the bits of one wide particle only where they rise above it
-ABSORB_FLUX = 0.6
 
 
 def coarse_particles(half: np.ndarray, learnt: np.ndarray | None, *, factor: int, width: int, k: float,
@@ -72,17 +70,15 @@ def coarse_particles(half: np.ndarray, learnt: np.ndarray | None, *, factor: int
 def merge_scales(fine: Detections, coarse: Detections) -> Detections:
     """The working resolution's detections with the coarse scale's: a coarse particle holding no
     fine detection within its radius is added; one holding ``ABSORB`` or more within
-    ``ABSORB_REACH`` of its radius, with less than ``ABSORB_FLUX`` of its light (scores: flux in
-    working pixels), replaces them; otherwise the fine ones stand.  The fine detections' ``cut``
-    carries over."""
+    ``ABSORB_REACH`` of its radius replaces them; otherwise the fine ones stand.  The fine
+    detections' ``cut`` carries over."""
     if len(coarse) == 0:
         return fine
     if len(fine) == 0:
         return Detections(coarse.centres, coarse.radii, coarse.scores, cut=fine.cut)
     d2 = ((coarse.centres[:, None, :] - fine.centres[None, :, :]) ** 2).sum(-1)
     inside = d2 < (ABSORB_REACH * coarse.radii[:, None]) ** 2
-    held = (inside * fine.scores[None, :]).sum(1)  # the light of the detections it holds
-    absorbs = (inside.sum(1) >= ABSORB) & (held < ABSORB_FLUX * coarse.scores)
+    absorbs = inside.sum(1) >= ABSORB
     alone = ~(d2 < coarse.radii[:, None] ** 2).any(1)
     kept_fine = fine[~inside[absorbs].any(0)] if absorbs.any() else fine
     added = coarse[alone | absorbs]
