@@ -134,3 +134,23 @@ def _near(shape: tuple[int, int], expected: Detections, factor: int) -> np.ndarr
     near[y[inside], x[inside]] = 255
     radius = int(np.clip(np.ceil(np.median(expected.radii) / factor + 1), 1, 8))
     return cv2.dilate(near, _disc(radius))
+
+
+def limit_map(noise: np.ndarray, shape: tuple[int, int], k: float, min_contrast: float) -> np.ndarray:
+    """uint8 (h, w): max(k * noise, min_contrast) from the coarse ``noise`` map, rounded down
+    (``excess > limit`` on integers is ``excess > k * noise``), saturated at 255."""
+    h, w = shape
+    limit = cv2.resize(np.maximum(k * noise, np.float32(min_contrast)), (w, h), interpolation=cv2.INTER_LINEAR)
+    return cv2.convertScaleAbs(limit, beta=-0.4999)
+
+
+def frame_alone(half: np.ndarray, *, cell: int, window: int, rings: tuple[int, ...], noise_window: int,
+                k: float, min_contrast: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(candidate mask uint8, excess uint8, noise float32 per cell) of a frame by the frame alone, as
+    a first frame is detected: its excess over its spatial background beyond ``k`` times the noise
+    at the rings' scale (and ``min_contrast``), cut to the spots that outshine their ``rings``."""
+    base = cv2.convertScaleAbs(spatial_background(half, cell=cell, window=window))
+    level, noise = prominence_level(half, rings, cell=cell, window=noise_window)
+    limit = limit_map(noise, half.shape, k, min_contrast)
+    mask, excess = threshold_mask(half, base, limit)
+    return prominent_only(mask, threshold_mask(half, level, limit)[0], max(rings[-1] // 2, 1)), excess, noise

@@ -8,7 +8,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .background import NOISE_WINDOW, prominence_level, prominent_only, spatial_background, threshold_mask
+from .background import NOISE_WINDOW, frame_alone, limit_map, prominence_level, spatial_background, threshold_mask
 from .follow import ViewFollowing
 
 
@@ -206,12 +206,8 @@ class BackgroundModel(ViewFollowing):
         self.limit = self._limit_map(self.noise, shape)
 
     def _limit_map(self, noise: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-        """uint8 (h, w): max(k * noise, min_contrast) from the coarse ``noise`` map, rounded down
-        (``excess > limit`` on integers is ``excess > k * noise``), saturated at 255."""
-        h, w = shape
-        limit = cv2.resize(np.maximum(self.k * noise, np.float32(self.min_contrast)), (w, h),
-                           interpolation=cv2.INTER_LINEAR)
-        return cv2.convertScaleAbs(limit, beta=-0.4999)
+        """uint8 (h, w): the model's :func:`limit_map` (its ``k`` and ``min_contrast``)."""
+        return limit_map(noise, shape, self.k, self.min_contrast)
 
     def new_scene(self, half: np.ndarray) -> bool:
         """True when more than ``NEW_SCENE`` of the frame (every 4th row) differs from the background by
@@ -242,16 +238,10 @@ class BackgroundModel(ViewFollowing):
         return self._moved_ago <= self.MOVED_FRAMES
 
     def single_mask(self, half: np.ndarray, scale: float = 1.0) -> np.ndarray:
-        """uint8 (h, w): this frame's candidates by the frame alone, as the first frame is detected
-        (over the spatial background, cut to the spots that outshine their rings), at ``scale``
-        times the limit."""
-        base = cv2.convertScaleAbs(spatial_background(half, cell=self.cell, window=self.window))
-        level, noise = prominence_level(half, self.rings, cell=self.cell, window=self.noise_window)
-        limit = self._limit_map(noise, half.shape)
-        if scale != 1.0:
-            limit = cv2.convertScaleAbs(limit, alpha=scale)
-        mask = threshold_mask(half, base, limit)[0]
-        return prominent_only(mask, threshold_mask(half, level, limit)[0], max(self.rings[-1] // 2, 1))
+        """uint8 (h, w): this frame's candidates by the frame alone (:func:`frame_alone`), at
+        ``scale`` times the limit."""
+        return frame_alone(half, cell=self.cell, window=self.window, rings=self.rings, noise_window=self.noise_window,
+                           k=self.k * scale, min_contrast=self.min_contrast * scale)[0]
 
     def young(self) -> bool:
         """True for the first ``YOUNG`` frames after a (re)start: the learnt background still holds
