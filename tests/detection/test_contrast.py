@@ -814,8 +814,9 @@ def test_the_background_turns_and_scales_with_the_view(turn, zoom, pan, register
     # the vehicle yawing, closing on the ground, and both as it goes: follow() takes translation only
     from antiscatter.detection.contrast import BackgroundModel, chain
 
-    if not register:  # nor the frame alone vetting a moving view's candidates
+    if not register:  # nor the frame alone vetting a moving view's candidates, nor the misfit check
         monkeypatch.setattr(BackgroundModel, "register", lambda self, half: False)
+        monkeypatch.setattr(BackgroundModel, "misfit", lambda self, half: False)
         monkeypatch.setattr(chain, "MOVING_SCALE", 0.0)
     detector = make_detector("contrast")
     counts = [len(detector.detect(frame)) for frame in _turning_view(turn, zoom, pan)]

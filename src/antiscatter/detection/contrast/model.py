@@ -224,10 +224,14 @@ class BackgroundModel(ViewFollowing):
         while the view moves: a followed view's background lags it by design, and the frame alone
         vets those candidates instead (the chain's ``MOVING_SCALE``).  Sets ``misfit_share``."""
         h, w = half.shape
-        cells = (max(w // self.cell, 3), max(h // self.cell, 3))
-        own = spatial_background(half, cell=self.cell, window=self.window)
-        learnt = cv2.resize(cv2.absdiff(half, self.base).astype(np.float32), cells, interpolation=cv2.INTER_AREA)
-        alone = cv2.resize(cv2.absdiff(half.astype(np.float32), own), cells, interpolation=cv2.INTER_AREA)
+        size = (max(w // 2, 8), max(h // 2, 8))  # at half the working resolution: a quarter of the work
+        small = cv2.resize(half, size, interpolation=cv2.INTER_AREA)
+        cell = max(self.cell // 2, 2)
+        cells = (max(size[0] // cell, 3), max(size[1] // cell, 3))
+        own = spatial_background(small, cell=cell, window=self.window // 2 if self.window else 0)
+        base = cv2.resize(self.base, size, interpolation=cv2.INTER_AREA)
+        learnt = cv2.resize(cv2.absdiff(small, base).astype(np.float32), cells, interpolation=cv2.INTER_AREA)
+        alone = cv2.resize(cv2.absdiff(small.astype(np.float32), own), cells, interpolation=cv2.INTER_AREA)
         worse = cv2.compare(learnt, alone * np.float32(1 + self.MISFIT_RATIO) + np.float32(self.MISFIT_LEVELS),
                             cv2.CMP_GT)
         self.misfit_share = cv2.countNonZero(worse) / worse.size
