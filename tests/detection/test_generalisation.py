@@ -222,3 +222,9 @@ def test_run_reports_what_the_bound_cut_in_the_metrics_and_the_summary(tmp_path)
     assert len(rows) == 4
     assert all(int(r["Candidates Cut"]) == 7 and int(r["Number of MECs on screen"]) == 5 for r in rows)
     assert "left 28 candidates out in 4 frames" in result.stdout
+
+
+@pytest.mark.parametrize("value", [float("inf"), float("nan"), 0.0])
+def test_a_particle_radius_without_bound_is_refused(value):
+    with pytest.raises(ValueError, match="max_radius: got"):
+        ContrastParams(max_radius=value)

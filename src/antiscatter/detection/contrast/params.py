@@ -108,5 +108,5 @@ class ContrastParams:
             raise ValueError(f"lone_k: got {self.lone_k}, allowed >= 0 (0 = off)")
         if self.max_particles < 0:
             raise ValueError(f"max_particles: got {self.max_particles}, allowed >= 0 (0 = no ceiling)")
-        if not self.max_radius > 0:
-            raise ValueError(f"max_radius: got {self.max_radius}, allowed > 0")
+        if not (math.isfinite(self.max_radius) and self.max_radius > 0):
+            raise ValueError(f"max_radius: got {self.max_radius}, allowed a finite number > 0")
