@@ -5,7 +5,7 @@ OpenCV thread), so the machine's noise falls on all alike.  Prints, per frame si
 90th percentile and maximum time of a frame in ms and each variant's median over the first's, and
 each variant's slowest frame over its median.
 
-    python scripts/bench_heldout.py --split test --variants memory=0,coarse=False default memory=0
+    python scripts/bench_heldout.py --split test --variants memory=0,coarse=false default memory=0
 """
 
 from __future__ import annotations
@@ -18,28 +18,23 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from antiscatter.config import parse_param
 from antiscatter.detection import make_detector
 from antiscatter.detection.contrast import ContrastParams
 from antiscatter.evaluate.heldout import cases
 
 
 def params(text: str) -> ContrastParams:
-    """``default`` or ``key=value,key=value`` as ContrastParams."""
+    """``default`` or ``key=value,key=value`` (as ``-p``) as ContrastParams."""
     if text == "default":
         return ContrastParams()
-    defaults = ContrastParams()
-    values = {}
-    for item in text.split(","):
-        key, value = item.split("=")
-        kind = type(getattr(defaults, key))
-        values[key] = (value == "True") if kind is bool else kind(value)
-    return ContrastParams(**values)
+    return ContrastParams(**dict(parse_param(item, ContrastParams, detector="contrast") for item in text.split(",")))
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--split", default="test", choices=("dev", "test"))
-    parser.add_argument("--variants", nargs="+", default=["memory=0,coarse=False", "default", "memory=0"])
+    parser.add_argument("--variants", nargs="+", default=["memory=0,coarse=false", "default", "memory=0"])
     parser.add_argument("--data", default="../shared/data", help="folder holding msrb/")
     parser.add_argument("--repeat", type=int, default=2, help="passes over the material")
     args = parser.parse_args()

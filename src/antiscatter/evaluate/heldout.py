@@ -25,8 +25,8 @@ import numpy as np
 
 from ..detection import Detector
 from ..errors import UsageError
-from .metrics import FrameScore, score_frame, summarise
-from .runs import Matching
+from .metrics import FrameScore, summarise
+from .runs import Matching, _score
 from .tables import FrameTruth
 
 __all__ = ["SPLITS", "KINDS", "MODELS", "BACKGROUNDS", "MIXTURES", "MSRB_PHOTO", "Case", "HeldoutFrame",
@@ -802,8 +802,7 @@ def _run_case(case: Case, detectors: dict[str, Detector], m: Matching,
             start = clock()
             found = detector.detect(image)
             times[name].append(clock() - start)
-            scores[name].append(score_frame(index, truth.centres, truth.radii, truth.counted, found.centres,
-                                            found.radii, min_gate=m.min_gate, gate_scale=m.gate_scale))
+            scores[name].append(_score(index, truth, found.centres, found.radii, m))
     return scores, times, counted
 
 
