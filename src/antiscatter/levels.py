@@ -16,36 +16,23 @@ A confirmed track just seen also rests (``rest`` frames; with ``run`` 1 for puls
 dim ones, :func:`rest_for`): its hole is left fully dark through the next exposure instead of
 dimmed, the camera cannot see the particle then, and the tracker carries its hole along the
 predicted path (an expected miss: it neither raises the level nor counts against the track); the
-exposure after, it is dimmed and looked at again.  Between looks a particle sends back none of the light a dim hole leaves it.  In the twin
-(co-located, 5 ms, prediction, scenes 1-6 each) dim holes removed 0.893 -> 0.899 (mixed; scenes
-7-18 0.871 -> 0.886, at 20 ms 0.874 -> 0.888), textured 0.872 -> 0.885, survey 0.842 -> 0.865,
-dense 0.805 -> 0.821, sand 0.776 -> 0.795, snow 0.922 -> 0.938, bubbles 0.932 -> 0.934, keeping
-0.000-0.006 less of the scene light (the holes of coasting tracks grow with their uncertainty);
-pulsed holes, which leave their particles light only while the camera exposes, -0.006..+0.012
-(mixed 0.914 -> 0.912, scenes 7-18 0.895 -> 0.900, survey 0.867 -> 0.879, bubbles 0.949 ->
-0.943; mean +0.004).  Two frames of rest after each look removed less than one (mixed, dim,
-before the light map's fixes: 0.895 against 0.900).  Depth probing reads a particle vanished
-under its probe as held by it, so a probed run does not rest.
+exposure after, it is dimmed and looked at again.  Between looks a particle sends back none of
+the light a dim hole leaves it.  Depth probing reads a particle vanished under its probe as held
+by it, so a probed run does not rest.
 
 Only confirmed tracks are turned down: a confirmed track's hole stays on its predicted path
 through a miss (coasting), a tentative one's goes out, and the particle is lit in full until
-it is found again.  In the twin (co-located, pulse, 5 ms, mixed) turning down every track --
-a new particle at ``target`` over its lit flux at once -- lost its first frames: removed
-0.64 against 0.77 with one level for all over frames 1-3 (8 scenes), and with a 480 Hz
-projector over 60 frames 0.908 against 0.915 (9 scenes); turning down confirmed tracks alone
-0.927 there, and at 120 Hz the same as every track (0.888 / 0.863 pulse / dim against 0.887 /
-0.864, 12 scenes).  A confirmed track seen lit in full (not under its hole) goes to ``target``
-over its flux; detectors whose scores are not a flux (NaN, the ``seed`` detector's) leave every
-hole at ``ceiling``.  Ids are the tracker's; the levels of tracks the tracker no longer holds
-are forgotten.
+it is found again (turning down every track lost a new particle's first frames).  A confirmed
+track seen lit in full (not under its hole) goes to ``target`` over its flux; detectors whose
+scores are not a flux (NaN, the ``seed`` detector's) leave every hole at ``ceiling``.  Ids are
+the tracker's; the levels of tracks the tracker no longer holds are forgotten.
 
 With depth probing (:class:`~antiscatter.probe.DepthProbe`) a track had its hole's light when
 its verdict found it dimmed under its own probe or hole (or vanished under it): ``dimmed`` is
 then the probe's ``dimmed``, and the probes and settled holes are drawn at the tracks' levels
-(between exposures, pulsed intervals stay dark).  Twin, 12 cm, 5 ms, against one level: pulse
-0.801 / 0.903 -> 0.814 / 0.900 removed / kept (seeds 1-12), 0.804 / 0.899 -> 0.814 / 0.899
-(13-36); dim 0.712 / 0.927 -> 0.736 / 0.924, 0.716 / 0.925 -> 0.739 / 0.924.  (When every track
-was turned down and the target was 40, probing lost scene light: pulse kept 0.895.)
+(between exposures, pulsed intervals stay dark).
+
+The measured history of these choices: ``docs/decisions/005-light-and-pattern-tuning.md``.
 """
 
 from __future__ import annotations
@@ -64,13 +51,8 @@ LEVELS = ("adaptive", "fixed")
 MIN_LEVEL = 0.02
 
 #: the flux (the ``contrast`` detector's score: grey levels above the background summed over the
-#: particle's working pixels) a dimmed particle is kept at -- a few times the faintest particles
-#: the detector finds (a tenth of its detections score below 8).  Twin (co-located, 5 ms, mixed,
-#: 12 + 12 scenes): 40 / 20 / 10 removed with pulsed holes 0.888 / 0.895 / - and 0.892 / 0.896 /
-#: 0.896, with dim holes 0.863 / 0.871 / - and 0.866 / 0.872 / 0.872, scene light the same;
-#: textured and sand +0.002..+0.006 for 20, a 480 Hz projector the same (0.927 / 0.926).  (40,
-#: when every track was turned down, confirmed or not: 20-80 and a floor of 0.01-0.04 were within
-#: 0.005 of each other then.)
+#: particle's working pixels) a dimmed particle is kept at (default 20: a few times the faintest
+#: particles the detector finds; history: docs/decisions/005-light-and-pattern-tuning.md)
 TARGET_FLUX = 20.0
 
 #: the most a level falls in one frame, and what a miss multiplies it by
@@ -82,14 +64,8 @@ RISE = 2.0
 REST = 1
 
 #: ... with dim holes, which leave their particle its level through the whole frame, not only while
-#: the camera exposes: the looks cost twice a pulse's light, and resting two frames after each
-#: withheld more than it lost to the particles the tracker's path then missed.  Twin (co-located,
-#: prediction, 5 ms, scene seeds 1-6, 1 s), 2 against 1: mixed 0.9194 -> 0.9242 removed (seeds
-#: 7-12 0.9086 -> 0.9141; over 5 s 0.9370 -> 0.9426), sand 0.8279 -> 0.8346, snow 0.9453 ->
-#: 0.9497, survey 0.8919 -> 0.8966, textured 0.9067 -> 0.9110, dense 0.8586 -> 0.8662, bubbles
-#: 0.9517 -> 0.9483; scene light 0.0001-0.0026 less (dense 0.006); 3: mixed 0.9185.  Pulsed holes
-#: with 2: mixed 0.9334 -> 0.9344 keeping 0.0010 less, so they keep ``REST``.  (Measured once
-#: before, before lost tracks found on their path kept their motion, 2 removed less than 1.)
+#: the camera exposes (default 2: the looks cost twice a pulse's light, and resting two frames
+#: after each withheld more than it lost; history: docs/decisions/005-light-and-pattern-tuning.md)
 DIM_REST = 2
 
 

@@ -12,6 +12,7 @@ __all__ = ["scale_mapping", "map_to_projector", "render_pattern", "blank_pattern
 #: frame width (camera px) that ``grow_holes``'s ``start`` is given for
 GROW_REFERENCE_WIDTH = 800
 #: run's and the twin's hole growth by default: ``grow`` and ``start`` of :func:`grow_holes`
+#: (history: docs/decisions/005-light-and-pattern-tuning.md)
 GROW, GROW_FROM = 0.6, 4.0
 
 _SHIFT = 4  # sub-pixel bits for cv2.circle
@@ -69,13 +70,9 @@ def grow_holes(holes: Detections, *, grow: float, start: float, frame_width: int
     What takes a hole off its particle grows as 1/distance, as the particle's image does: a near
     particle is fast across the view (the prediction's error), out of the projector's focus
     (the hole's blurred rim) and large; the many small far ones keep their holes and the scene
-    its light.  ``GROW`` from ``GROW_FROM`` by default (run and twin).  In the twin (co-located,
-    5 ms, pulsed holes with prediction, 60 frames, scenes 1-12) grow 0.6 from 4 px took removed / kept from 0.903 / 0.965 to 0.918 / 0.956 (from frame
-    20: 0.935 / 0.968 to 0.953 / 0.960; held out, scenes 13-24, 0.909 / 0.965 to 0.920 / 0.956),
-    where 2 projector px added to every hole (``margin``) cost 0.007-0.02 of the scene light and
-    removed no more; grow 0.3 / 1.0: 0.913 / 0.961 and 0.920 / 0.950.  Under a projector with a
-    6 mm lens focused at 3 m (``TwinGeometry.projector_aperture_m``), whose blur the pinhole twin
-    leaves out, 0.849 / 0.964 -> 0.902 / 0.956 (0.3: 0.878 / 0.960, 1.0: 0.915 / 0.949).
+    its light.  ``GROW`` (0.6) from ``GROW_FROM`` (4 px) by default (run and twin): more of the
+    backscatter removed for a little of the scene light, where a margin added to every hole
+    cost more light and removed no more (history: docs/decisions/005-light-and-pattern-tuning.md).
     """
     if grow == 0 or len(holes) == 0:
         return holes
@@ -138,12 +135,10 @@ def camera_light(pattern: np.ndarray, camera_from_projector: np.ndarray, camera_
 
     At the camera's full resolution, so that the detector pools a hole's imprint exactly as it
     pools the frame: a map at its half-size working grid, sampled at the pixels' centres, put
-    each hole's rim where no pooled frame has it (in the twin, co-located, pulsed holes on the
-    textured seabed, 0.682 of the backscatter removed and 0.816 of the scene light kept against
-    0.901 / 0.972 now, with the detector's slack of a pixel).  Nearest projector pixel: the twin's figures within 0.008 of bilinear's
-    (scenes 1-6, textured, mixed, 12 cm) at 0.4 of its time (400 against 930 us at 800x600 on
-    the development VM).  ``out``: a (height, width) uint8 buffer to fill (reused between frames:
-    a new full-resolution image each frame cost more in page faults than the warp on that VM).
+    each hole's rim where no pooled frame has it.  Nearest projector pixel: bilinear's figures
+    at less of the time (history: docs/decisions/005-light-and-pattern-tuning.md).  ``out``: a
+    (height, width) uint8 buffer to fill (reused between frames: a new full-resolution image
+    each frame cost more in page faults than the warp).
     """
     if pattern.dtype != np.uint8:
         pattern = cv2.convertScaleAbs(pattern, alpha=255.0)

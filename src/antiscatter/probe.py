@@ -112,10 +112,9 @@ class DepthProbe:
     dim_level: light left in holes (0..1); a probed particle counts as hit when it
         comes back dimmer than (1 + dim_level) / 2 of its lit brightness -- what it
         gets with half of it under the probe, so it is judged under the probe when
-        most of it is -- or not at all.  (The geometric middle sqrt(dim_level) judged
-        a big near particle "not under" whenever a quarter of it stuck out past the
-        probe's end, and its bisection kept restarting: in the twin at 12 cm over
-        scene seeds 1-4, removal 0.62-0.79 with it, 0.75-0.81 with this.)
+        most of it is -- or not at all (the geometric middle, sqrt(dim_level), kept
+        restarting the bisection of big near particles; history:
+        docs/decisions/005-light-and-pattern-tuning.md).
     settle_px: stop halving once the interval spans this many projector pixels
         (about a hole's diameter).
     prior_samples: a new particle's search starts from the inverse depths that particles of its
@@ -124,17 +123,13 @@ class DepthProbe:
         camera's gain, the water -- is learnt from the probe's own results: a line (of the
         brightness law's slope, ``SLOPE``, until ``FIT_SLOPE`` tracks have settled, then fitted)
         through (log brightness, log inverse depth) of the last ``prior_samples`` tracks whose settled
-        hole was seen to dim them ``HELD`` exposures in a row (82 % of those lie within 10 % of
-        the true depth in the twin, against 67 % of all settled ones), widened to the central
+        hole was seen to dim them ``HELD`` exposures in a row, widened to the central
         ``prior_coverage`` of the residuals plus a quarter each side.  The whole range before
         ``MIN_PRIOR`` such tracks, with ``prior_samples=0``, and for a track whose search
-        already started again once.  The whole range spans a median 553 projector px at the
-        housing's 12 cm and the searches took 88 % of the light the pattern withheld from the
-        scene; with the prior (three scenes, 120 frames, pulse, prediction) removed 0.812 ->
-        0.824, scene light kept 0.845 -> 0.882 (from frame 20: 0.851 / 0.856 -> 0.866 /
-        0.900).  Coverage 0.6 / 0.7 / 0.8 / 0.95 kept 0.879 / 0.886 / 0.882 / about 0.86, the
-        removal within 0.01.  Off sunlit or very clear water, where brightness says little
-        about the distance to the lamp, the residuals are wide and so is the prior.
+        already started again once.  Default 400: whole-range searches cost most of the light
+        the pattern withholds from the scene.  Off sunlit or very clear water, where brightness
+        says little about the distance to the lamp, the residuals are wide and so is the prior.
+        History: docs/decisions/005-light-and-pattern-tuning.md.
     prior_coverage: share of the residuals the prior's interval covers (default 0.8).
     projector_size: (width, height) of the projector, for ``min_worth``; None: every hole drawn.
     min_worth: a hole is drawn only where it is worth its light: the share of the frame's
@@ -159,52 +154,31 @@ class DepthProbe:
     projector_size: tuple[int, int] | None = None
     min_worth: float = MIN_WORTH
 
-    #: settled tracks needed before brightness narrows a new particle's search.  The searches of
-    #: the first second of a dive are the costliest (whole-range segments: at 12 cm the twin's
-    #: first 15 frames keep 0.56-0.86 of the scene light, later ones 0.92-0.93), so the prior
-    #: starts early; the fit is renewed with every settled track.  Twin, 12 cm, pulse,
-    #: prediction, scene seeds 1-12, 60 frames, slope fitted from the start: 30 / 20 / 12 / 8
-    #: removed 0.753 / 0.761 / 0.764 / 0.752 keeping 0.878 / 0.880 / 0.883 / 0.885; 30 / 12 over
-    #: 120 frames 0.783 / 0.789 keeping 0.898 / 0.901, over 240 0.796 / 0.799 keeping 0.908 /
-    #: 0.910.  With the slope given (``SLOPE``) only the level is learnt, and 4 settled tracks
-    #: fix it well enough (below).
+    #: settled tracks needed before brightness narrows a new particle's search (default 4: the
+    #: searches of a dive's first second are the costliest, so the prior starts early, and with the
+    #: slope given only the level is learnt; history: docs/decisions/005-light-and-pattern-tuning.md)
     MIN_PRIOR = 4
     #: slope of log inverse depth against log brightness until ``FIT_SLOPE`` tracks have settled.
     #: The brightness is the detector's score: for the default detector a particle's flux, the
     #: light it sends back summed over its image, which goes as the fourth power of the distance
     #: (the lamp's inverse square, times the image's area for a particle the camera resolves or
     #: the camera's own inverse square for one it does not), so inverse depth goes as its fourth
-    #: root: 0.25.  (On the plain mixed scene the fit over every detection is 0.18: attenuation
-    #: and defocus make far particles dimmer still; 0.28 for the peak.)  Twin, 12 cm, 48 scenes
-    #: (seeds 25-72), 60 frames, flux: 0.18 / 0.25 / 0.35 / 0.5 removed 0.806 / 0.802 / 0.799 /
-    #: 0.795, scene light 0.891-0.892.  With the peak for brightness, 0.5 (the square root: the
-    #: peak of a resolved particle goes as the inverse square) -- the figures below, then:
-    #: (fitted, it came out 0.19-0.50 from 12 settled tracks and
-    #: 0.44-0.45 from 40 in the twin's first three scenes: defocus and the water's attenuation
-    #: make far particles a little dimmer still.)  Fitting both from the 12th track on, 18 scenes
-    #: of 60 frames at 12 cm (pulse, prediction) removed 0.749 keeping 0.893 (from frame 20
-    #: 0.817 / 0.929); the slope given, from the 4th, 0.752 / 0.898 (0.828 / 0.932); over 12
-    #: scenes of 120 frames 0.796 / 0.911 -> 0.797 / 0.913 (the slope given throughout: 0.756 /
-    #: 0.899 and 0.795 / 0.915, but particles too small to resolve fade faster than the inverse
-    #: square, and the data's own slope is kept for them once there is enough of it).
+    #: root: 0.25.  From ``FIT_SLOPE`` (40) settled tracks the data's own slope is kept: particles
+    #: too small to resolve fade faster than the inverse square.  History:
+    #: docs/decisions/005-light-and-pattern-tuning.md.
     SLOPE = 0.25
     FIT_SLOPE = 40
     #: while the slope is given, the prior's interval reaches at least this far either side of the
-    #: line (log inverse depth: a factor 1.35 in depth) -- the spread of a few settled tracks
-    #: says little about the next particle's (0 / 0.3 / 0.45 / 0.6: 60 frames, slope given
-    #: throughout, removed 0.752 / 0.756 / 0.750 and with fitting from 40 - / 0.752 / 0.748 /
-    #: 0.749, scene light within 0.002)
+    #: line (log inverse depth: 0.3, a factor 1.35 in depth) -- the spread of a few settled tracks
+    #: says little about the next particle's (history: docs/decisions/005-light-and-pattern-tuning.md)
     FEW_BAND = 0.3
     #: exposures in a row a settled hole must be seen to dim its particle before that depth is learnt
     HELD = 2
     #: exposures in a row a settled hole must miss its particle (it stays as bright as when lit)
-    #: before the search starts again.  One verdict is noisy -- a particle half out of its hole
-    #: after a jolt of the prediction, a neighbour's light, a flake turning -- and each restart
-    #: spends frames of long searching holes on a depth that was right.  Twin, 12 cm, pulse,
-    #: prediction, scene seeds 1-12: 1 / 2 / 3 removed 0.749 / 0.753 / 0.741 keeping 0.863 /
-    #: 0.878 / 0.880 over 60 frames, 0.776 / 0.783 / 0.775 keeping 0.882 / 0.898 / 0.900 over
-    #: 120, 0.791 / 0.796 keeping 0.891 / 0.908 over 240 (1 / 2).  Widening the hole threefold
-    #: at the first miss instead: 0.735 / 0.884 (60 frames) -- a wide hole is searched again.
+    #: before the search starts again (default 2).  One verdict is noisy -- a particle half out of
+    #: its hole after a jolt of the prediction, a neighbour's light, a flake turning -- and each
+    #: restart spends frames of long searching holes on a depth that was right (history:
+    #: docs/decisions/005-light-and-pattern-tuning.md).
     RESTART = 2
 
     def __post_init__(self) -> None:
@@ -358,9 +332,7 @@ class DepthProbe:
     #: a dimmed particle is placed in the part of its interval its own probe darkened only while it
     #: is at least this likely to be there, its depths along the line taken as equally likely (the
     #: part's share of the interval's dark points); below, the hull of them all (:meth:`_widen`).
-    #: Twin, 12 cm, pulse, prediction, 60 frames, scene seeds 25-72: 0.7 / 0.8 / 0.9 / 1 (any dark
-    #: point elsewhere) removed 0.770 / 0.772 / 0.778 / 0.777 keeping 0.895 / 0.894 / 0.892 /
-    #: 0.889; judged by the own probe alone 0.750 / 0.896.
+    #: Default 0.8 (history: docs/decisions/005-light-and-pattern-tuning.md).
     SURE = 0.8
 
     def _widen(self, exposure: np.ndarray, centres: np.ndarray, lo: np.ndarray, hi: np.ndarray,
@@ -373,9 +345,8 @@ class DepthProbe:
         Judged by its own probe alone, a particle passing under a neighbour's hole was taken to be
         in its probed part, and the bisection went on in the wrong half, with nothing to tell.  The
         lines of particles on the same camera rows overlap in the projector, and in the first
-        frames' whole-range searches half the view is dark: in the twin at 12 cm (8 scenes), 46 %
-        of the dimmed verdicts while searching were for particles not in their own probe, 93 % of
-        those at a place the exposure had dark.
+        frames' whole-range searches half the view is dark (history:
+        docs/decisions/005-light-and-pattern-tuning.md).
         exposure: the light on the scene during the exposure, in projector pixels (uint8, 255 =
         full, or float, 1 = full), read at SAMPLES points of each interval (:meth:`dark_at`).
         centres: the particles' camera pixels at the exposure."""
@@ -515,12 +486,11 @@ class DepthProbe:
         A thick line's round caps reach half its thickness past its ends.  A probe -- the part
         of its track's interval that the next exposure judges -- is drawn that much shorter at
         each end (down to a disc at its middle), so the light it withholds, caps included,
-        spans its interval and no more.  Otherwise a particle just past the probe's end is
+        spans its interval and no more: otherwise a particle just past the probe's end is
         dimmed by the cap, judged under it, and every such verdict pushes the bisection the
-        same way: in the twin the settled depths sat a median 8 projector px too far, beside
-        their particles.  A whole interval -- unknown depth, a settled one, or the one kept
-        dark between pulses -- only has to cover the particle and is drawn in full, caps and
-        all (in the twin, at 12 cm: 0.786 removed instead of 0.771 at the same scene light).
+        same way.  A whole interval -- unknown depth, a settled one, or the one kept dark
+        between pulses -- only has to cover the particle and is drawn in full, caps and all
+        (history: docs/decisions/005-light-and-pattern-tuning.md).
         """
         out = blank_pattern(size, out)
         if len(holes) == 0:

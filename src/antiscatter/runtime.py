@@ -478,7 +478,7 @@ class _Pipeline:
             if self.frame_period is not None and self.compensate:
                 # the camera sees our holes (and no flash): where the tracked particles should be in
                 # the next frame, faint light is them, dimmed under their holes (open loop this only
-                # adds noise: IDF1 fell by 0.005-0.016 on the scenarios)
+                # adds noise; history: docs/decisions/005-light-and-pattern-tuning.md)
                 self.detector.expect(prediction.holes(captured + self.frame_period))
             if self.probe is not None:  # this exposure's verdicts, then the next intervals to try
                 seen = Detections(detections.centres, detections.radii, detections.scores, tracks.detection_ids,
@@ -493,8 +493,8 @@ class _Pipeline:
             if self.pulse_level is not None and tc.predict:
                 # what the first exposure under this pattern -- the first to start after it goes on --
                 # is taken under, drawn for its time: the probes' halves it judges for its start; the
-                # lifted pattern, on for a projector refresh from then, for the middle of that (twin,
-                # co-located, 12 scenes: 0.925 -> 0.928 removed)
+                # lifted pattern, on for a projector refresh from then, for the middle of that
+                # (history: docs/decisions/005-light-and-pattern-tuning.md)
                 period = self.frame_period or 0.0
                 started = captured - frame.exposure_ns / 2e9  # the camera's frames: stamped mid-exposure
                 on = latency + self.display_lag_s  # until the pattern is light on the scene

@@ -36,24 +36,16 @@ __all__ = ["Tracker", "Tracks", "Prediction"]
 #: frame width (px) the motion settings' defaults are for (see Tracker.set_frame_size)
 REFERENCE_WIDTH = 800
 
-#: share of the frame period after a pattern goes on that its predicted holes are drawn for: a
-#: pattern stays on until the next one, a frame later, and a hole drawn for its middle is off by
-#: a quarter of a frame's motion at either end, where one drawn for its start was off by half a
-#: frame's at the end.  In the twin (co-located, 5 ms, prediction, mixed, 120 Hz projector: the
-#: pattern on for two refreshes, scene seeds 1-6, 1 s) pulsed holes removed 0.907 drawn for the
-#: start of the pattern's time, 0.922 / 0.929 / 0.925 for 0.375 / 0.5 / 0.625 of a frame later,
-#: keeping 0.953 / 0.952 / 0.952 / 0.951 of the scene light (dim holes 0.911 / 0.917 / 0.909 for
-#: 0.375 / 0.5 / 0.625, at 12 cm pulsed probing 0.806 / 0.813 / 0.812); holes redrawn for each refresh --
-#: no output of ``run`` does that -- 0.933 / 0.953, and each hole drawn at both refreshes'
-#: places at once 0.934 but kept 0.943.
+#: share of the frame period after a pattern goes on that its predicted holes are drawn for
+#: (default 0.5: the pattern stays on a frame, and a hole drawn for its middle is off by a quarter
+#: of a frame's motion at either end; history: docs/decisions/004-tracking-tuning.md)
 PREDICT_AHEAD = 0.5
 
 #: frames a lost confirmed track keeps its identity by default (see Tracker's keep_misses)
 KEEP_MISSES = 12
 
-#: sightings after which a track's hole follows its velocity, confirmed or not: two give a
-#: velocity.  In the twin (co-located, 5 ms, mixed) moving 2-hit tracks too raised the removed
-#: backscatter from 0.884 to 0.891 (pulse; dim 0.838 to 0.844) at the same scene light kept.
+#: sightings after which a track's hole follows its velocity, confirmed or not (default 2: two
+#: give a velocity; history: docs/decisions/004-tracking-tuning.md)
 MOVING_HITS = 2
 
 #: px: the predicted centres of a merge's tracks lie at least this far apart (the box around
@@ -80,17 +72,17 @@ NIS_MEMORY = 0.7
 #: (see Tracker's accel_floor)
 NIS_RATE = 0.25
 
-#: memory of the averaged lag-1 correlation of a track's normalised innovations (see Tracker's
-#: accel_floor; 0.7 / 0.9: mean isolated IDF1 0.9391 / 0.9395 against 0.9396, prediction error
-#: 0.759 / 0.746 px against 0.749)
+#: memory of the averaged lag-1 correlation of a track's normalised innovations: the share of the
+#: last average kept at each sighting (see Tracker's accel_floor; history:
+#: docs/decisions/004-tracking-tuning.md)
 WHITE_MEMORY = 0.8
 
-#: a track's noise is multiplied by 2 ** (WHITE_GAIN x that correlation) per sighting (1.5 / 3:
-#: IDF1 0.9399 / 0.9393, prediction 0.751 / 0.748 px)
+#: a track's noise is multiplied by 2 ** (WHITE_GAIN x that correlation) per sighting (history:
+#: docs/decisions/004-tracking-tuning.md)
 WHITE_GAIN = 2.0
 
-#: most a particle's flux may change between its first two detections for :meth:`Tracker._far`
-#: to take them for one particle (either way; 1.3 / 2: isolated IDF1 the same to 0.0006)
+#: most a particle's flux may change between its first two detections, either way, for
+#: :meth:`Tracker._far` to take them for one particle (history: docs/decisions/004-tracking-tuning.md)
 FAR_RATIO = 1.5
 
 #: a new track's innovation statistics (see Tracker._match_noise): the NIS of a consistent filter,
@@ -124,142 +116,64 @@ class Tracks:
 class Tracker:
     """Kalman tracker for particles (see the module docstring).
 
+    The measured history of each default: ``docs/decisions/004-tracking-tuning.md``.
+
     Parameters
     ----------
     confirm_hits : hits before a track is confirmed (default 3).
     max_misses : frames a confirmed track keeps its hole without a detection (coasting; default 5).
-    keep_misses : frames a confirmed track is kept without a detection, for its identity: a
-        particle the detector loses for a while gets its id back (at least ``max_misses``; from
-        ``max_misses`` on it has no hole).  A track found again after more than ``max_misses``
-        keeps its id but not its motion: it starts again as a new track does (the neighbours'
-        flow, unconfirmed, its hole where it is seen) -- it may be another particle, and its old
-        velocity is stale either way -- unless it is found within ``REFOUND`` (2) px of where its
-        motion took it: then it is the same particle, moving so, and keeps its motion and
-        confirmation.  A faint particle lost under its own hole (the camera cannot see it at the
-        hole's level) is found again on its path when its hole goes; started afresh, it was lit
-        for two frames more until confirmed again, three or four lit frames in every eleven.  In
-        the twin (co-located, pulse, prediction, 5 ms, 1 s) against starting every such track
-        afresh: scene seeds 1-6 mixed 0.9324 -> 0.9334 removed, sand 0.8392 -> 0.8443, snow
-        0.9569 -> 0.9584, textured +0.0013, dense +0.0015, survey 0.9108 -> 0.9093; seeds 7-12
-        mixed 0.9219 -> 0.9238, snow +0.0022, survey 0.9015 -> 0.9051, sand 0.8459 -> 0.8504;
-        scene light kept 0.0005-0.0009 less (the found tracks keep their holes); at 12 cm with
-        probing +0.005 and -0.005 removed over seeds 1-6 and 7-12 (1 / 3 px: mixed 0.9329 /
-        0.9336).  Isolated IDF1 the same to 0.0004.  Default None: ``KEEP_MISSES`` (12), or
-        ``max_misses`` if that is more.  Lost tracks take only the detections that the tracks with a hole leave
-        (:meth:`_associate`).  Against 5 (= max_misses): isolated-particle IDF1 bubbles 0.954 ->
-        0.973, snow 0.901 -> 0.918, sand 0.849 -> 0.875, mixed 0.876 -> 0.905, textured 0.908 ->
-        0.920, fullres 0.909 -> 0.910, dense 0.702 -> 0.701, seed 0.782 -> 0.773; in the twin
-        (pulse, prediction, scene seeds 1-6) co-located 0.880 / 0.954 -> 0.881 / 0.954 removed /
-        kept, at 12 cm with probing 0.770 / 0.860 -> 0.766 / 0.868.  Without the fresh start a
-        long-lost track handed a new particle its old motion (co-located 0.872 / 0.949); matched
-        in one pass with the others, lost tracks gave IDF1 up to 0.013 more (dense) but the
-        update cost 0.46 ms instead of 0.38 for 300 particles (0.45 now).  8 / 20 / 30 gave IDF1
-        within 0.01 of 12.
-    tentative_misses : misses a not yet confirmed track survives (default 3: a faint new particle
-        the detector misses keeps its identity; it has no hole meanwhile; 1 before: IDF1 -0.01;
-        at most ``keep_misses``).
+    keep_misses : frames a confirmed track is kept without a detection, for its identity (at least
+        ``max_misses``; from ``max_misses`` on it has no hole).  Default None: ``KEEP_MISSES``
+        (12), or ``max_misses`` if that is more: a particle the detector loses for a while gets
+        its id back.  Found again after more than ``max_misses``, a track keeps its id but starts
+        again as a new track does (it may be another particle; its velocity is stale) unless it is
+        within ``REFOUND`` (2) px of its prediction; lost tracks take only the detections the
+        tracks with a hole leave (:meth:`_associate`).  History: decision 004.
+    tentative_misses : misses a not yet confirmed track survives, without a hole (default 3: a
+        faint new particle the detector misses keeps its identity; at most ``keep_misses``).
+        History: decision 004.
     flow_neighbours : a new track's velocity starts as the median velocity of this many nearest
-        confirmed tracks (when there are that many; 0 = at rest).  Default 5: sand thrown across
-        the view at 10-35 px a frame was otherwise born again in every frame (its first move
-        larger than the gate of a track at rest): sand IDF1 +0.02.
+        confirmed tracks (when there are that many; 0 = at rest).  Default 5: a particle thrown
+        across the view is not born again in every frame.  History: decision 004.
     max_dark : misses in a row a confirmed track survives while they are expected -- its
-        particle was under its own hole during the exposure (``update(..., unlit=ids)``), so it
-        could not be seen: the hole stays on the predicted path for up to this many frames.
-        0 (default) counts them as ordinary misses.  In the twin with perfect detections 10-30
-        raised the removed backscatter of snow from 0.72 to 0.89; with the default detector it
-        changed removal by +-0.01 and cost 0.01-0.03 of the scene light, so it is off for now.
+        particle was under its own hole during the exposure (``update(..., unlit=ids)``) -- its
+        hole kept on the predicted path.  0 (default) counts them as ordinary misses: with the
+        default detector it cost scene light for no removal.  History: decision 004.
     gate_sigma : gate in standard deviations of the predicted position (default 4).
     min_gate, max_gate : gate limits in pixels (defaults 3 and 80).
     frame_size : (width, height) of the frames in px (None: 800 wide, no edges): ``accel_noise``,
         ``initial_speed`` and ``max_gate`` are for 800 px wide frames and grow in proportion above
-        that (:meth:`set_frame_size`; at 1456x1088 (fullres) isolated IDF1 0.910 -> 0.940), and a
-        track whose predicted centre has left the view by more than its radius is deleted: its
-        particle has gone out of sight.  Kept, such a track (its particle's identity, 12 frames)
-        took the next particle to come in near where it was heading: isolated IDF1 survey (the
-        vehicle moving sideways: particles stream out of one side and in at the other) 0.897 ->
-        0.924, dense 0.767 -> 0.778, mixed, textured, fullres, sand +0.001..+0.004, the rest the
-        same.
-    accel_noise : process noise, px/s^2 of white acceleration: a new track's, and the most a track's
-        becomes (``accel_floor``; default 1500: the simulator's
-        particles change speed by up to 500-2400 px/s^2 -- a bubble's 3 Hz wobble 0.3-1.5 m away,
-        the seed tank's discs turning to new headings).  3000 before: isolated IDF1 seed 0.793
-        -> 0.820, dense 0.778 -> 0.810, survey 0.932 -> 0.939, bubbles, snow, sand, mixed,
-        textured, fullres +0.001..+0.004 (1000: IDF1 within 0.01 of 1500, 400 lost the wobbling
-        bubbles, 0.976 -> 0.900).  The smaller spread draws tighter holes: at 12 cm with probing
-        removal fell 0.016 (0.774 -> 0.761 over 6 scenes) and scene light rose 0.009; with holes
-        grown by 1.3 standard deviations instead of 1 (:meth:`holes`; 1.5 removed less again) the
-        twin (pulse, prediction, 5 ms, 60 frames, 18 scenes) co-located removed 0.871 -> 0.878
-        keeping 0.956 -> 0.958, at 12 cm 0.751 -> 0.749 keeping 0.887 -> 0.893 (from frame 20:
-        0.810 -> 0.817, 0.920 -> 0.929).
+        that (:meth:`set_frame_size`), and a track whose predicted centre has left the view by more
+        than its radius is deleted: its particle has gone out of sight (kept, it took the next
+        particle to come in near where it was heading).  History: decision 004.
+    accel_noise : process noise, px/s^2 of white acceleration: a new track's, and the most a
+        track's becomes (``accel_floor``; default 1500: the simulator's particles change speed by
+        up to 500-2400 px/s^2 -- a bubble's 3 Hz wobble 0.3-1.5 m away, the seed tank's discs
+        turning to new headings).  History: decision 004.
     merge_reach : a detection whose disc holds the predicted centres of two or more confirmed
         tracks -- within ``merge_reach`` times its radius of its centre, and at least
         ``MERGE_GAP`` px apart from each other -- is taken for their particles merged in the image
         (overlapping, or touching with their halos joined): it moves none of them (each goes on
         along its own prediction, as a coasting track does) and is a miss for none; the track it is
-        assigned to takes its id.  Its centre lies between the particles, and taken as one of them it
-        pulled that track off its path and gave it the other's velocity when they parted (then two
-        identities swapped or one was lost).  0 = off.  Default 0.7.  Isolated-particle IDF1 (the
-        default detector, the catalogue's scenes): seed tank 0.844 -> 0.883, dense 0.855 -> 0.858,
-        survey 0.946 -> 0.949, snow 0.953 -> 0.954, sand 0.963, fullres 0.957 -> 0.956, mixed
-        0.951 -> 0.949, textured 0.953 -> 0.949, bubbles 0.981 -> 0.969 (a near bubble seen as
-        two detections some frames carries two confirmed tracks, which then stop following its
-        wobble); 0.5 / 0.6 / 0.8: seed 0.850 / 0.867 / 0.871.  Correcting the tracks with the
-        merged centre at a larger measurement noise instead of not at all (0.3-2 x its radius):
-        seed 0.860-0.868; only while the detection is 1.1 / 1.3 times a member's radius or more:
-        seed 0.867 / 0.850; at most 2 / 4 / 8 frames in a row: seed 0.852 / 0.850 / 0.858.
+        assigned to takes its id.  Its centre lies between the particles: taken as one of them, it
+        swapped or lost identities.  0 = off.  Default 0.7.  History: decision 004.
     flux_ratio : a detection whose flux (its score: the light it sends back; NaN, as the ``seed``
         detector's, checks nothing) is more than ``flux_ratio`` times a track's last, or less than
         that over ``flux_ratio`` (give or take ``FLUX_SLACK``), is not that track's particle --
         unless the track's own hole explains it: under its hole this exposure (``update(...,
         unlit=ids)``) a particle may be any fainter, and one last seen under its hole may come
-        back lit up to 1 / ``MIN_LEVEL`` (50) times brighter still (no more: in the twin a
-        tentative track last seen under its hole took a near particle just come into the lamp,
-        a fifth of a frame's backscatter, for three frames; co-located, pulsed holes, scene seeds
-        1-6, 0.930 / 0.958 removed over the run / from frame 20 -> 0.931 / 0.959, dim holes
-        0.915 / 0.943 -> 0.917 / 0.945; 1 / 0.1: 0.932 / 0.959 and 0.918 / 0.946).  0 = off.
-        Default 6.  A distance gate alone let a new, faint
-        track whose particle had gone dark under its hole take a bright particle just come into
-        the lamp 12-25 px away, fly off with its motion, and leave it unconfirmed for frames:
-        in the twin (co-located, 5 ms, prediction, scene seeds 1-6) the mixed scene's start-up
-        lost a near particle carrying a fifth of the backscatter for five frames.
-        Isolated-particle IDF1 (the catalogue, the default detector, against 0): seed tank 0.883
-        -> 0.886, dense 0.858 -> 0.880, textured 0.949 -> 0.957, mixed 0.949 -> 0.955, fullres
-        0.956 -> 0.961, snow 0.954 -> 0.958, bubbles 0.969 -> 0.973, survey 0.949 -> 0.951, sand
-        0.963 -> 0.964; 3 / 4 / 8 / 12: seed 0.874 / 0.874 / 0.887 / 0.884, dense 0.886 / 0.881 /
-        0.876 / 0.873, bubbles 0.976 / 0.975 / 0.969 / 0.969 (merged particles send back twice
-        one's light, and the report's discs range 9 times in area).  Twin: mixed pulsed holes
-        0.926 / 0.954 -> 0.929 / 0.953 removed / kept, dim 0.913 -> 0.915; dense pulsed 0.856 /
-        0.836 -> 0.874 / 0.842, dim 0.835 / 0.842 -> 0.852 / 0.847 (seeds 1-3).  Off where depth
-        is probed (the runtime and the twin): a particle's light under the probes is not known
-        until their verdict, and at 12 cm the check (8, slack 20) removed 0.769 against 0.815.
+        back lit up to 1 / ``MIN_LEVEL`` (50) times brighter still.  0 = off.  Default 6: a
+        distance gate alone let a faint track take a bright particle just come into the lamp.  Off
+        where depth is probed (the runtime and the twin): a particle's light under the probes is
+        not known until their verdict.  History: decision 004.
     far_bright : a particle seen once, in the last frame, whose flux is at least ``far_bright``
         times the frame's median detection's, and that no track takes, may be found again anywhere
         within ``max_gate``: its track and a detection no track took are paired when each is the
-        other's only candidate there with a flux within ``FAR_RATIO`` (1.5) of its own (a
-        particle born again frame after frame leaves tentative tracks behind it, each as bright:
-        only the newest one is looked at -- the older ones made every pairing ambiguous and the
-        search found nothing: in a twin test scene, seeds 1 and 2, 0.30 / 0.28 removed against
-        0.46 / 0.45 now; the catalogue's twin and IDF1 figures within 0.001).  A near particle is
-        bright (its light goes as the fourth power of its nearness) and crosses
-        the image fast (as its nearness); among far, slow particles the neighbours' flow gives it
-        their motion, and one moving farther in a frame than a new track's gate (about 27 px at 800
-        px wide) was born again in every frame and never had a hole where it was: in the twin
-        (mixed, co-located, pulsed holes, prediction, 5 ms, scene seed 3, 5 s) a bubble 0.33 m away
-        crossing 28 px a frame carried 30-70 % of the frame's unremoved backscatter for ten
-        frames; found again, it is under its hole from its third frame.  0 = off (and off with
-        ``flux_ratio`` 0: where depth is probed, a particle's light is not known).  Default 6.
-        Twin (co-located, pulse, prediction, 5 ms, scene seeds 1-6, 1 s) removed: mixed 0.9306 ->
-        0.9325, sand 0.8348 -> 0.8391, survey 0.9092 -> 0.9112, textured +0.0002, snow and
-        bubbles the same, scene light kept the same to 0.0002; mixed over 5 s runs 0.9487 / 0.9579
-        -> 0.9518 / 0.9580 removed / kept (4 / 10: 0.9520 / 0.9516; these with the twin's holes redrawn
-        each refresh, which no output of run does; one pattern a frame, as run, 0.9503 -> 0.9516); dense
-        (seeds 1-3) 0.8746 ->
-        0.8783.  Isolated-particle IDF1 (the catalogue): dense 0.8834 ->
-        0.8849, mixed 0.9566 -> 0.9576, fullres 0.9612 -> 0.9623, sand +0.0004, the rest the
-        same (4: seed tank 0.8860 -> 0.8841; with no brightness bound 0.8811, whose white discs
-        are alike).  A new track's velocity spread grown with its radius instead (a near particle
-        looks bigger) removed 0.9506 over 5 s at best, and in crowds of alike particles the
-        wider gates cost the seed tank's IDF1 0.886 -> 0.867-0.882.
+        other's only candidate there with a flux within ``FAR_RATIO`` (1.5) of its own (of the
+        tentative tracks a particle born again frame after frame leaves behind, only the newest).
+        A near particle is bright and fast: one moving farther in a frame than a new track's gate
+        was born again in every frame and never had a hole where it was.  0 = off (and off with
+        ``flux_ratio`` 0).  Default 6.  History: decision 004.
     radius_noise : radius random walk, px/sqrt(s) (default 4).
     position_noise : detected centre noise, px (default 0.7).
     radius_measurement_noise : detected radius noise, px (default 1).
@@ -267,15 +181,9 @@ class Tracker:
     flow_holes : a particle seen once has its hole moved along the velocity it was born with --
         its neighbours' flow (``flow_neighbours``; at rest while there are fewer) -- as a tracked
         one's is along its own, and grown by its uncertainty as theirs (:meth:`holes`).  Default
-        True.  A near particle new to the view moves several pixels before its hole goes on: in the
-        twin (co-located, 5 ms, mixed, pulsed holes at each particle's own level -- every track's
-        then, confirmed or not, see antiscatter.levels) removed 0.885 ->
-        0.887 over scene seeds 1-12 (from frame 20: 0.926 -> 0.932), 0.880 -> 0.888 over 13-24,
-        dim holes 0.862 -> 0.864 and 0.853 -> 0.864, scene light 0.001-0.002 less; bubbles 0.941
-        -> 0.950, sand 0.776 -> 0.785, textured 0.875 -> 0.877, snow 0.946 -> 0.944 (seeds 1-6).
-        Off where depth is probed: a new track's hole there is the whole epipolar segment, and at
-        12 cm the moving segments kept 0.005 less scene light (0.903 -> 0.898) for 0.005 more
-        removed.
+        True: a near particle new to the view moves several pixels before its hole goes on.  Off
+        where depth is probed: a new track's hole there is the whole epipolar segment.  History:
+        decision 004.
     accel_floor : the least acceleration noise a track's may fall to, a share of ``accel_noise``
         (default 0.1; 1 = every track's is ``accel_noise``).  Each track's noise is matched to
         its own motion by its innovations (covariance matching, Mehra 1972): a new track starts
@@ -288,68 +196,27 @@ class Tracker:
         their sign from one sighting to the next, which pushes it up.  A particle drifting
         steadily gets tight gates and holes, a wobbling bubble or a particle speeding up keeps
         wide ones.  A track found again after its hole went, its motion started afresh, starts
-        again at ``accel_noise``.  The report's tank discs move at constant velocity, and one
-        noise for every particle had to cover the bubbles' wobble (400 lost them, see
-        ``accel_noise``).  Isolated-particle IDF1 / prediction error +1 frame (the catalogue's
-        scenes, seed tank also seeds 2 and 3, dense, bubbles, textured, fullres also seed 2,
-        mixed seed 2; the default detector) against 1: seed tank seeds 1 / 2 / 3 0.886 / 0.853 /
-        0.874 -> 0.905 / 0.891 / 0.894, prediction 1.38 / 1.60 / 1.29 -> 1.19 / 1.28 / 1.19 px,
-        dense 0.886 / 0.895 -> 0.892 / 0.898, bubbles 0.973 / 0.983 the same (0.68 -> 0.70 px),
-        textured 0.963 / 0.963 -> 0.961 / 0.963, fullres 0.962 / 0.956 -> 0.960 / 0.960, snow
-        0.960 -> 0.961, sand 0.965 -> 0.966 (0.43 -> 0.32 px), the mean over these 15 0.934 /
-        0.801 px -> 0.941 / 0.738 px (floor 0.25 / 0.15 / 0.05: 0.940 / 0.749, 0.940 / 0.737,
-        0.941 / 0.745).  Twin (pulse, prediction, 5 ms, 1 s, scene seeds 1-12) against 1:
-        co-located 0.927 / 0.955 removed / kept -> 0.928 / 0.957, dim 0.911 / 0.955 -> 0.913 /
-        0.956; at 12 cm with probing 0.816 / 0.924 -> 0.819 / 0.926, at 20 ms 0.745 / 0.898 ->
-        0.762 / 0.901 (floor 0.25: 0.814 / 0.925 and 0.753 / 0.900).  The NIS alone (floor
-        0.25) gave IDF1 0.941 but predicted worse than one noise (0.880 px: bubbles 1.14,
-        textured 0.92-0.98 -- its measurement noise, 0.7 px, above the detector's 0.3-0.45, kept
-        the NIS near 0.3 and drove every noise to the floor), and 0.744 / 0.899 at 12 cm, 20 ms;
-        raising a missed track's noise, or lifting it to ``accel_noise`` on an innovation beyond
-        the chi-square's 99 %, changed its mean IDF1 by under 0.002.  A slowly drifting particle
-        whose track was born at rest is followed more slowly: in the twin's single-particle test
-        its tighter hole leaves 1-5 % of its light on its edge until frame 14 (frame 9 with one
-        noise).
+        again at ``accel_noise``.  History: decision 004.
     miss_cost : pixels (for frames 800 px wide, scaled with the width as the motion settings) that
         a track left without a detection costs the assignment where tracks compete for
         detections: a rearrangement that matches one more track is made only where it lengthens
         the summed distance by less (and a contested pair longer than this is not made); 0 = the
         most matches first.  A pair that is the only candidate of both its ends is matched within
-        its gate all the same.  Matching the most first let a track seen once, whose gate is wide,
-        take a neighbour's detection and push the neighbour's track onto a stray one -- a switch
-        for both.  Isolated IDF1 with 0 / 22 / 30 / 45: seed tank (seeds 1-3) 0.905 / 0.891 /
-        0.894 -> (30) 0.906 / 0.900 / 0.906, dense cloud (seeds 1-3) 0.892 / 0.898 / 0.871 ->
-        0.895 / 0.903 / 0.876 (means over the six 0.8919 / 0.8955 / 0.8975 / 0.8948; 6 and 10 px
-        cost the dense cloud 0.18 and 0.05: its particles move farther than that); bubbles, snow,
-        sand, mixed, survey, textured and fullres 0.000..+0.002, their ID switches 17 / 26 / 87 /
-        131 / 100 / 14 / 62 -> 16 / 25 / 63 / 79 / 68 / 14 / 55.  Twin (pulse, prediction, scene
-        seeds 1-12, 60 frames): at 12 cm with probing 0.820 / 0.926 removed / kept -> 0.819 /
-        0.926 at 5 ms, 0.762 / 0.901 -> 0.756 / 0.901 at 20 ms; co-located (seeds 1-6) 0.932 /
-        0.954 -> 0.932 / 0.955, dim 0.919 / 0.953 -> 0.917 / 0.953.
+        its gate all the same.  Default 30: matching the most first let a track seen once, whose
+        gate is wide, take a neighbour's detection -- a switch for both.  History: decision 004.
     flux_cost : pixels (at 800 px wide, scaled as ``miss_cost``) added to a pair's distance per unit
         of |log| of the ratio of the detection's flux to the track's last (both plus
         ``FLUX_SLACK``), where tracks compete for detections: of two particles near a prediction,
         the one alike in brightness is taken -- a particle's light changes little from frame to
-        frame, its neighbours' by up to ``flux_ratio`` (16: twice the flux costs 11 px).  Gates
-        stay on distance; none for a track under its own hole now or at its last sighting, none
-        where a flux is not known (``seed``'s NaN), off with ``flux_ratio`` (depth probing).
-        0 = distance alone.  Isolated IDF1 0 -> 8 / 16 / 24: seed tank (seeds 1-3) 0.920 /
-        0.919 / 0.914 -> (16) 0.930 / 0.931 / 0.934, dense cloud 0.897 / 0.906 / 0.870 -> 0.903 /
-        0.912 / 0.877 (means over the six 0.9042 -> 0.9097 / 0.9145 / 0.9147); bubbles 0.975 ->
-        0.986, mixed 0.963 -> 0.967, fullres 0.962 -> 0.965, sand +0.001, survey +0.001,
-        textured 0.000, snow -0.0005 (means over those seven 0.9647 -> 0.9674, at 12 0.9675, at 24
-        0.9667); ID switches over the 13 scenes 7609 -> 5936.  Twin (pulse, prediction, 60 frames,
-        seeds 1-6): co-located 0.932 / 0.954 removed / kept either way, dim 0.916 / 0.953 ->
-        0.916 / 0.953; at 12 cm probing it is off.  Update time +2 % (mixed scene, medians of
-        five interleaved rounds), the logs taken once per track and detection.
+        frame.  Default 16 (twice the flux costs 11 px).  Gates stay on distance; none for a track
+        under its own hole now or at its last sighting, none where a flux is not known
+        (``seed``'s NaN), off with ``flux_ratio`` (depth probing).  0 = distance alone.  History:
+        decision 004.
     revive_frames : for this many frames after a track seen twice or more is deleted, a
         detection that no live track takes but that lies within the dead track's gate (its
         motion carried on) gets the dead track's id and state back instead of a new one; it
-        starts over as a new track otherwise (confirmation, a hole that follows it only from
-        its next sighting).  0 = off (default).  Measured (5 frames): IDF1 +0.013..+0.029 on
-        bubbles, snow, sand, mixed, textured, -0.006..-0.016 on seed and dense; in the twin
-        (pulse, 5 ms, seeds 1-3) removed -0.005..0 co-located and +0.004..-0.03 at 12 cm
-        probing -- identities help counting, not the light, so it is off for the lamp.
+        starts over as a new track otherwise.  0 = off (default: identities help counting, not
+        the light).  History: decision 004.
     """
 
     def __init__(self, *, confirm_hits: int = 3, max_misses: int = 5, keep_misses: int | None = None,
@@ -520,10 +387,8 @@ class Tracker:
 
         Such a detection leaves one of its tracks unmatched, or matched to another detection (a
         piece of the merge) farther than ``MERGE_SUSPECT`` px from its prediction: only the
-        detections holding such a suspect are looked at, with the track each was given.  Isolated
-        IDF1 on the report's discs 0.883 against 0.885 looking at every track (the other scenes the
-        same) for a tenth of the tracks: an update for 300 synthetic particles 418 us median against
-        365 without merges, where every track swept against every detection cost 70-100 us more."""
+        detections holding such a suspect are looked at, with the track each was given -- a tenth
+        of the tracks (history: docs/decisions/004-tracking-tuning.md)."""
         merged = np.zeros(len(self.x), bool)
         if not self.merge_reach or len(detections) == 0 or len(matches) == 0:
             return merged
@@ -620,8 +485,8 @@ class Tracker:
                 self.vv[stale] = self.initial_speed ** 2
                 self.hits[stale] = 1
                 self.qa[stale] = self.accel_noise
-                # a new track's NIS and no last innovation (the correlation's averages kept: isolated
-                # IDF1 0.9396 against 0.9392 reset too, over 15 scenes)
+                # a new track's NIS and no last innovation (the correlation's averages kept; history:
+                # docs/decisions/004-tracking-tuning.md)
                 self.innovation[stale, 0] = _NEW_INNOVATION[0]
                 self.innovation[stale, 3:5] = _NEW_INNOVATION[3:5]
         if len(unmatched_tracks):
@@ -684,8 +549,7 @@ class Tracker:
         Tracks with a hole are matched first; the lost ones (``is_lost``, :meth:`_lost`)
         kept for their identity only take what is left.  A lost track's gate has grown wide over
         its misses: matched together with the rest, it competed for its neighbours' detections
-        and made the assignment problems large (300 tracks: 0.38 -> 0.46 ms an update with a
-        dozen lost ones among them)."""
+        and made the assignment problems large (history: docs/decisions/004-tracking-tuning.md)."""
         gates = self._gates(self.pp)
         scores = detections.scores
         miss = self.miss_cost * self.scale
@@ -850,17 +714,9 @@ class Tracker:
         grows by ``uncertainty_sigma`` standard deviations of the predicted
         position, at most ``max_growth`` pixels.  New particles, seen once, are
         moved along their neighbours' flow (``flow_holes``; without it they get a
-        hole where they were seen).  The
-        defaults (1.3 sd, at most 1.25 px) are the twin's best balance of backscatter
-        removed and scene light kept (see ``accel_noise``); 2 sd up to 6 px removed
-        0.01 more and kept 0.02-0.08 less (co-located, 5-20 ms, with 1 sd as the
-        base and the process noise of 3000 then).  At most 2 px before: at 12 cm,
-        where the growth widens every depth probe's segment along its whole length,
-        2 / 1.5 / 1.25 / 1 px removed 0.809 / 0.807 / 0.804 / 0.792 keeping 0.892 /
-        0.899 / 0.902 / 0.907 (pulse, prediction, 5 ms, 60 frames, scene seeds 1-24;
-        seeds 25-72: 2 / 1.5 / 1.25 px 0.802 / 0.802 / 0.801 keeping 0.892 / 0.898 /
-        0.901; 73-96: 2 / 1.25 px 0.789 / 0.796 keeping 0.891 / 0.900); at 20 ms 0.749 /
-        0.858 -> 0.753 / 0.871; co-located 0.877 / 0.959 -> 0.876 / 0.965.
+        hole where they were seen).  The defaults (1.3 sd, at most 1.25 px) are the
+        twin's best balance of backscatter removed and scene light kept (history:
+        docs/decisions/004-tracking-tuning.md).
         """
         return self.snapshot().holes(at, uncertainty_sigma=uncertainty_sigma, max_growth=max_growth)
 
