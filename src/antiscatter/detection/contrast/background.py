@@ -9,6 +9,7 @@ The learnt, per-pixel background that takes over when frames follow each other i
 from __future__ import annotations
 
 import functools
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -144,13 +145,23 @@ def limit_map(noise: np.ndarray, shape: tuple[int, int], k: float, min_contrast:
     return cv2.convertScaleAbs(limit, beta=-0.4999)
 
 
+class FrameAlone(NamedTuple):
+    """A frame's candidates by the frame alone (:func:`frame_alone`)."""
+
+    mask: np.ndarray  #: uint8 candidates, cut to the spots that outshine their rings
+    excess: np.ndarray  #: uint8 excess over the spatial background
+    noise: np.ndarray  #: float32 noise per coarse cell, at the rings' scale
+    limit: np.ndarray  #: uint8 threshold the excess was held to
+
+
 def frame_alone(half: np.ndarray, *, cell: int, window: int, rings: tuple[int, ...], noise_window: int,
-                k: float, min_contrast: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(candidate mask uint8, excess uint8, noise float32 per cell) of a frame by the frame alone, as
-    a first frame is detected: its excess over its spatial background beyond ``k`` times the noise
-    at the rings' scale (and ``min_contrast``), cut to the spots that outshine their ``rings``."""
+                k: float, min_contrast: float) -> FrameAlone:
+    """A frame's candidates by the frame alone, as a first frame is detected: its excess over its
+    spatial background beyond ``k`` times the noise at the rings' scale (and ``min_contrast``), cut
+    to the spots that outshine their ``rings``."""
     base = cv2.convertScaleAbs(spatial_background(half, cell=cell, window=window))
     level, noise = prominence_level(half, rings, cell=cell, window=noise_window)
     limit = limit_map(noise, half.shape, k, min_contrast)
     mask, excess = threshold_mask(half, base, limit)
-    return prominent_only(mask, threshold_mask(half, level, limit)[0], max(rings[-1] // 2, 1)), excess, noise
+    mask = prominent_only(mask, threshold_mask(half, level, limit)[0], max(rings[-1] // 2, 1))
+    return FrameAlone(mask, excess, noise, limit)

@@ -27,9 +27,8 @@ from .working import UNLIT, _upper_light, _working_light, downsample, to_channel
 #: any catalogued scene needs (the seed tank's clusters, 1.0), so no frame can make it run long
 SPLIT_BUDGET = 4
 
-#: share of the single-frame limit a candidate must clear in the frame alone while the view moves
-#: or the model is young (``BackgroundModel.YOUNG``)
-#: (the learnt background's own candidates are kept where the frame alone shows a spot); 0 = off
+#: share of the single-frame limit at which the frame alone must also show a learnt-background
+#: candidate while the view moves or the model is young (``BackgroundModel.YOUNG``); 0 = off
 MOVING_SCALE = 0.5
 
 

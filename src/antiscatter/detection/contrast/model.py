@@ -112,7 +112,6 @@ class BackgroundModel(ViewFollowing):
         self._next = 0
         self._frames = 0
         self._typical_noise = 0.0  # the noise map's median
-        self.misfit_share = 0.0  # the last :meth:`misfit` test's share of cells explained worse
         self._reset_view()
 
     def _rows(self, band: int, height: int) -> tuple[int, int, int, int]:
@@ -222,7 +221,7 @@ class BackgroundModel(ViewFollowing):
         more than ``MISFIT_SHARE`` of the coarse cells: memory that does not fit the frame in hand
         gives way to single-frame detection (the model starts again from this frame).  Not asked
         while the view moves: a followed view's background lags it by design, and the frame alone
-        vets those candidates instead (the chain's ``MOVING_SCALE``).  Sets ``misfit_share``."""
+        vets those candidates instead (the chain's ``MOVING_SCALE``)."""
         h, w = half.shape
         size = (max(w // 2, 8), max(h // 2, 8))  # at half the working resolution: a quarter of the work
         small = cv2.resize(half, size, interpolation=cv2.INTER_AREA)
@@ -234,8 +233,7 @@ class BackgroundModel(ViewFollowing):
         alone = cv2.resize(cv2.absdiff(small.astype(np.float32), own), cells, interpolation=cv2.INTER_AREA)
         worse = cv2.compare(learnt, alone * np.float32(1 + self.MISFIT_RATIO) + np.float32(self.MISFIT_LEVELS),
                             cv2.CMP_GT)
-        self.misfit_share = cv2.countNonZero(worse) / worse.size
-        return self.misfit_share > self.MISFIT_SHARE
+        return cv2.countNonZero(worse) > self.MISFIT_SHARE * worse.size
 
     def moving(self) -> bool:
         """True while the view counts as moving (``MOVED_FRAMES`` after the last pan or turn)."""
@@ -245,7 +243,7 @@ class BackgroundModel(ViewFollowing):
         """uint8 (h, w): this frame's candidates by the frame alone (:func:`frame_alone`), at
         ``scale`` times the limit."""
         return frame_alone(half, cell=self.cell, window=self.window, rings=self.rings, noise_window=self.noise_window,
-                           k=self.k * scale, min_contrast=self.min_contrast * scale)[0]
+                           k=self.k * scale, min_contrast=self.min_contrast * scale).mask
 
     def young(self) -> bool:
         """True for the first ``YOUNG`` frames after a (re)start: the learnt background still holds

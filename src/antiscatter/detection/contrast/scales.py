@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 
 from ...detections import Detections
-from .background import NOISE_WINDOW, frame_alone, limit_map, threshold_mask
+from .background import NOISE_WINDOW, frame_alone, threshold_mask
 from .components import label, measure
 
 #: pooling of the working image for the coarse scale (a 40 px radius disc at 1456 px is 5 px there)
@@ -48,12 +48,11 @@ def coarse_particles(half: np.ndarray, learnt: np.ndarray | None, *, factor: int
     h, w = half.shape
     cw, ch = max(w // COARSE, 8), max(h // COARSE, 8)
     small = cv2.resize(half, (cw, ch), interpolation=cv2.INTER_AREA)
-    mask, excess, noise = frame_alone(small, cell=COARSE_CELL, window=COARSE_WINDOW, rings=COARSE_RINGS,
-                                      noise_window=NOISE_WINDOW, k=COARSE_K * k, min_contrast=min_contrast)
+    mask, excess, noise, limit = frame_alone(small, cell=COARSE_CELL, window=COARSE_WINDOW, rings=COARSE_RINGS,
+                                             noise_window=NOISE_WINDOW, k=COARSE_K * k, min_contrast=min_contrast)
     if learnt is not None:
         pooled = cv2.resize(learnt, (cw, ch), interpolation=cv2.INTER_AREA)
-        cv2.bitwise_and(mask, threshold_mask(small, pooled, limit_map(noise, (ch, cw), COARSE_K * k, min_contrast))[0],
-                        dst=mask)
+        cv2.bitwise_and(mask, threshold_mask(small, pooled, limit)[0], dst=mask)
     if not cv2.countNonZero(mask):
         return Detections.empty()
     pool = w // cw
