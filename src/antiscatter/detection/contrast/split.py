@@ -5,6 +5,9 @@ shape (:func:`_split_flat`); every pixel then goes to its nearest kept peak.
 
 from __future__ import annotations
 
+from functools import partial
+from typing import Callable
+
 import cv2
 import numpy as np
 
@@ -39,6 +42,19 @@ DISC_PLATEAU = 0.7
 FLAT_COMPACT = 0.94
 #: the shape test's distances are taken to this many steps a pixel (see :func:`_split_flat`)
 _DISTANCE_STEPS = 1024.0
+#: peaks this many working pixels apart or more (the smoothing's 3x3 no longer fills a neck
+#: between them) are one particle when a path above the dip's level joins them (:func:`_joined`)
+JOIN_REACH = 4
+#: ... above this share of the dip that sets them apart below their height: a ring's or an arc's
+#: peaks are joined along it at nearly their own height, a faint particle beside a bright one is
+#: not (its saddle is the bright one's flank)
+JOIN_SHARE = 0.5
+#: ... the levels rounded up to this many steps an octave (9 % apart), so a component is labelled
+#: at most this many times an octave of its peaks' levels
+JOIN_LEVELS = 8
+#: the shape test's levels of the distance transform are taken to this step (px) when two peaks
+#: are looked for a path between them (:func:`_joined_in`)
+_JOIN_STEP = 0.125
 _BINOMIAL = np.array([1.0, 2.0, 1.0], np.float32)
 _BLOCK_X = np.array([0, 1, 0, 1])
 _BLOCK_Y = np.array([0, 0, 1, 1])
@@ -97,14 +113,20 @@ def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarr
         bx, by = px[bump], py[bump]
         bump = bump[(excess.ravel().take(pf[bump]) < SPOT_SHARE * top[pl[bump]])
                     & (bx > 0) & (bx < w - 1) & (by > 0) & (by < h - 1)]
-        is_max[bump[_spots(excess, pf[bump])]] = True
+        spot = bump[_spots(excess, pf[bump])]
+        is_max[spot] = True
     maxima = np.bincount(pl[is_max], minlength=n)
     crowded = _over_budget(np.where(maxima >= 2, area * maxima, 0), budget)
     if crowded.any():  # measured whole: no peaks, no shape test
         maxima[crowded] = 0
     peaks = np.flatnonzero(is_max & (maxima[pl] >= 2))
+    smoothed = np.ones(len(pl), bool)  # the peaks that are maxima of the smoothed excess, not spots
+    if fine:
+        smoothed[spot] = False
     kept_c, kept_y, kept_x = _separate(pl[peaks], py[peaks], px[peaks], s[peaks].astype(np.float64) / weights,
-                                       excess, noise_at(noise, px[peaks], py[peaks], excess.shape), min_d2=min_d2)
+                                       excess, noise_at(noise, px[peaks], py[peaks], excess.shape), min_d2=min_d2,
+                                       join=partial(_joined, (pl, px, py, n), smooth_img, weights),
+                                       joinable=smoothed[peaks])
     counts = np.bincount(kept_c, minlength=n)
     shaped = counts < 2  # the components whose shape is looked at: those the intensity did not split,
     if fine:  # and flat ones, whose intensity maxima are where pooling cut their plateau's edges
@@ -255,7 +277,8 @@ def _moments(lab: np.ndarray, x: np.ndarray, y: np.ndarray, n: int) -> tuple[np.
 
 def _separate(comp: np.ndarray, py: np.ndarray, px: np.ndarray, value: np.ndarray, excess: np.ndarray,
               sigma: np.ndarray, min_d2: int = 9, discs: np.ndarray | None = None,
-              strict: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+              strict: np.ndarray | None = None, join: Callable[..., np.ndarray] | None = None,
+              joinable: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The peaks that stand apart, for all components at once: (component, y, x) of each kept peak.
 
     The highest peak of each component is kept; another is kept when its
@@ -265,6 +288,11 @@ def _separate(comp: np.ndarray, py: np.ndarray, px: np.ndarray, value: np.ndarra
     the discs the peaks are the centres of), by the neck two overlapping discs of those radii
     have there (:func:`_disc_neck_dip`); where ``strict`` ((N,) bool per peak) is False, by
     such a neck only.
+    join: (components, (x, y) of the peaks, (x, y) of their higher peaks, levels) -> (K,) bool,
+    whether a path of the component's pixels all above the level joins the two: a peak the
+    segment's dip sets apart is still one particle with its higher peak when, along another path,
+    it falls by less than ``JOIN_SHARE`` of that dip (:func:`_joined`) -- a ring's or an arc's
+    peaks, whose segment crosses its darker inside.  joinable: (N,) bool per peak, those ``join`` may join (default all).
     """
     if len(comp) == 0:
         return comp, py, px
@@ -274,6 +302,8 @@ def _separate(comp: np.ndarray, py: np.ndarray, px: np.ndarray, value: np.ndarra
         discs = discs[order]
     if strict is not None:
         strict = strict[order]
+    if joinable is not None:
+        joinable = joinable[order]
     first = np.empty(len(comp), bool)
     first[0] = True
     np.not_equal(comp[1:], comp[:-1], out=first[1:])
@@ -305,13 +335,84 @@ def _separate(comp: np.ndarray, py: np.ndarray, px: np.ndarray, value: np.ndarra
             at += np.rint(t * dx[:, None]).astype(np.intp)
             at += start[:, None]
             dip = _gather(excess, start).astype(np.float64) - _gather(excess, at.ravel()).reshape(at.shape).min(axis=1)
-            apart = dip >= np.maximum(value[i] / 4.0, 3.0 * sigma[i])
+            need = np.maximum(value[i] / 4.0, 3.0 * sigma[i])
+            apart = dip >= need
+            if join is not None and apart.any():
+                level = value[i] - JOIN_SHARE * need
+                pair = np.flatnonzero(apart if joinable is None else apart & joinable[i])
+                apart[pair[join(comp[i[pair]], (px[i[pair]], py[i[pair]]), (px[j[pair]], py[j[pair]]),
+                                level[pair])]] = False
             if strict is not None:
                 apart &= strict[i]
             if discs is not None and discs[i].any():
                 apart |= discs[i] & _disc_neck_dip(value[i], value[j], np.sqrt(d2[far]), dip)
             kept[i[apart]] = True
     return comp[kept], py[kept], px[kept]
+
+
+def _joined(members: tuple[np.ndarray, np.ndarray, np.ndarray, int], image: np.ndarray, weights: float,
+            comp: np.ndarray, a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray],
+            level: np.ndarray) -> np.ndarray:
+    """(K,) bool: whether peaks ``a`` and ``b`` ((x, y) each, (K,) of component ``comp``) are
+    joined by a path (8-connected) of their component's pixels whose smoothed excess is above
+    ``level`` -- the saddle between them is higher than the level, so they are one particle --
+    for peaks ``JOIN_REACH`` working px apart or more; nearer ones are left apart.
+
+    members: (label, x, y, labels) of the components' pixels; image: the smoothed excess, times
+    ``weights`` (the peaks' values are the smoothed excess: a ring half a working pixel wide,
+    pooled, is uneven along its length where smoothed it is not).  Each round draws the
+    components that still have a level to look at into one strip (:func:`_strip`), each at its
+    own level, and labels it once; levels are taken up to ``JOIN_LEVELS`` steps an octave (never
+    joining more than asked), so the work is each component's pixels times its distinct levels."""
+    out = np.zeros(len(comp), bool)
+    far = np.flatnonzero((a[0] - b[0]) ** 2 + (a[1] - b[1]) ** 2 >= JOIN_REACH ** 2)
+    if not len(far):
+        return out
+    lab, x, y, n = members
+    step = np.ceil(np.log2(np.maximum(level[far] * weights, 1.0)) * JOIN_LEVELS)
+    order = np.lexsort((step, comp[far]))
+    far, step = far[order], step[order]
+    c = comp[far]
+    new = np.ones(len(far), bool)
+    new[1:] = (c[1:] != c[:-1]) | (step[1:] != step[:-1])  # a component's next distinct level
+    first = np.ones(len(far), bool)
+    first[1:] = c[1:] != c[:-1]
+    rank = np.cumsum(new) - 1
+    rank -= np.maximum.accumulate(np.where(first, rank, 0))  # its rank among the component's levels
+    values = _gather(image, y * image.shape[1] + x)
+    for r in range(int(rank.max()) + 1):
+        at = far[rank == r]
+        wanted = np.zeros(n, bool)
+        wanted[comp[at]] = True
+        threshold = np.zeros(n)
+        threshold[comp[at]] = np.exp2(step[rank == r] / JOIN_LEVELS)
+        sel = wanted[lab]
+        (sx, sy), (shift_x, shift_y), strip = _strip(lab[sel], x[sel], y[sel], wanted,
+                                                     _bounds(lab[sel], x[sel], y[sel], n),
+                                                     values=(values[sel] > threshold[lab[sel]]).astype(np.uint8))
+        _, labels = cv2.connectedComponents(strip, connectivity=8, ltype=cv2.CV_32S)
+        ca = labels[a[1][at] + shift_y[comp[at]], a[0][at] + shift_x[comp[at]]]
+        cb = labels[b[1][at] + shift_y[comp[at]], b[0][at] + shift_x[comp[at]]]
+        out[at] = (ca > 0) & (ca == cb)
+    return out
+
+
+def _joined_in(image: np.ndarray, a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray],
+               level: np.ndarray, step: float) -> np.ndarray:
+    """(K,) bool: whether pixels ``a`` and ``b`` ((x, y) each, (K,)) of ``image`` lie in one
+    8-connected region of pixels above ``level`` ((K,)), the levels taken up to whole ``step``s
+    (never joining more than asked) so the image is labelled once per distinct level: the work
+    is the image's pixels times the pairs' distinct levels (the shape test's few flat components)."""
+    floor = np.ceil(level / step)
+    joined = np.zeros(len(level), bool)
+    above = np.empty(image.shape, np.uint8)
+    for value in np.unique(floor):
+        at = np.flatnonzero(floor == value)
+        cv2.compare(image, float(value * step), cv2.CMP_GT, dst=above)
+        _, labels = cv2.connectedComponents(above, connectivity=8, ltype=cv2.CV_32S)
+        la, lb = labels[a[1][at], a[0][at]], labels[b[1][at], b[0][at]]
+        joined[at] = (la > 0) & (la == lb)
+    return joined
 
 
 def _disc_neck_dip(low: np.ndarray, high: np.ndarray, apart: np.ndarray, dip: np.ndarray) -> np.ndarray:
@@ -401,7 +502,8 @@ def _split_flat(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarra
         strict[discs_only] = False
     kept_c, kept_y, kept_x = _separate(lab[peak], cy[peak], cx[peak], value[peak].astype(np.float64),
                                        distance, np.full(int(peak.sum()), 1.0 / 3.0), discs=flat[lab[peak]],
-                                       strict=strict[lab[peak]])
+                                       strict=strict[lab[peak]],
+                                       join=lambda _, a, b, level: _joined_in(distance, a, b, level, _JOIN_STEP))
     several = np.bincount(kept_c, minlength=n)[kept_c] >= 2
     kept_c = kept_c[several]
     kept_y, kept_x = kept_y[several] - shift_y[kept_c], kept_x[several] - shift_x[kept_c]
@@ -426,20 +528,21 @@ def _bounds(lab: np.ndarray, x: np.ndarray, y: np.ndarray, n: int) -> tuple[np.n
 
 
 def _strip(lab: np.ndarray, x: np.ndarray, y: np.ndarray, wanted: np.ndarray,
-           bounds: tuple[np.ndarray, ...]):
+           bounds: tuple[np.ndarray, ...], values: np.ndarray | int = 1):
     """The pixels of each wanted component drawn (as 1) in a box of its own, the boxes side by
     side in one strip with 3 px of background around each (for the distance transform and the
     5x5 maximum): an image as large as the components, where their common bounding box spanned
     the seed tank's whole band of discs (four times the work at full resolution).  ``bounds``:
     (left, top, right, bottom) of each component, inclusive, around its pixels here or more (the
     distances, maxima and dips at its pixels are the same in a larger box or another place).
-    Returns the pixels' strip coordinates (x, y), each component's shift (strip = frame + shift;
-    (n,) each) and the image."""
+    ``values``: what each pixel is drawn as (an array gives the image its type; default 1, uint8).  Returns the pixels' strip
+    coordinates (x, y), each component's shift (strip = frame + shift; (n,) each) and the image."""
     left, top, right, bottom = (np.where(wanted, v, 0).astype(np.intp) for v in bounds)
     width = np.where(wanted, right - left + 4, 0)
     shift_x = np.cumsum(width) - width + 3 - left
     shift_y = 3 - top
     sx, sy = x + shift_x[lab], y + shift_y[lab]
-    image = np.zeros((int((bottom - top)[wanted].max()) + 7, int(width.sum()) + 4), np.uint8)
-    image.ravel().put(sy * image.shape[1] + sx, 1)
+    image = np.zeros((int((bottom - top)[wanted].max()) + 7, int(width.sum()) + 4),
+                     np.asarray(values).dtype if np.ndim(values) else np.uint8)
+    image.ravel().put(sy * image.shape[1] + sx, values)
     return (sx, sy), (shift_x, shift_y), image
