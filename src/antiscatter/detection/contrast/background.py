@@ -18,6 +18,25 @@ from ...detections import Detections
 from .kernels import _disc
 
 
+#: the widest median :func:`local_median` takes at its own resolution: OpenCV's 3x3 and 5x5 8-bit
+#: medians are sorting networks, its 7-15 px ones on frames under a megapixel a per-column
+#: histogram that costs tens of times more (docs/decisions/007-detector-speed.md)
+MEDIAN_KERNEL = 5
+
+
+def local_median(image: np.ndarray, window: int) -> np.ndarray:
+    """uint8 (h, w): about the ``window`` x ``window`` median of ``image`` (uint8; window in its
+    pixels), taken over block means ``ceil(window / MEDIAN_KERNEL)`` pixels a side -- a median of at
+    most ``MEDIAN_KERNEL`` x ``MEDIAN_KERNEL`` blocks -- and upsampled linearly: the level of the
+    scene at that scale, which a particle smaller than half the window does not move."""
+    h, w = image.shape
+    step = max(-(-int(window) // MEDIAN_KERNEL), 1)
+    small = cv2.resize(image, (max(w // step, 1), max(h // step, 1)), interpolation=cv2.INTER_AREA)
+    # OpenCV's 8-bit median takes windows up to 255 (frames over 6000 px wide ask for more)
+    kernel = min(max(int(round(window / step)) | 1, 3), 255)
+    return cv2.resize(cv2.medianBlur(small, kernel), (w, h), interpolation=cv2.INTER_LINEAR)
+
+
 def spatial_background(half: np.ndarray, *, cell: int, window: int = 0) -> np.ndarray:
     """Background of a working-resolution frame from that frame alone, float32 (h, w): the 3x3
     median of the cell means (the lamp's cone, the scene's brightness at a coarse scale), raised
@@ -33,7 +52,9 @@ def spatial_background(half: np.ndarray, *, cell: int, window: int = 0) -> np.nd
     means = cv2.resize(half.astype(np.float32), (cw, ch), interpolation=cv2.INTER_AREA)
     robust = cv2.medianBlur(means, 3)  # a particle spoils a cell, not its 3x3 median
     coarse = cv2.resize(robust, (w, h), interpolation=cv2.INTER_LINEAR)
-    if window:  # the median at half the resolution: 0.15 ms at 400x300 where the full one takes 3.6
+    if window:
+        # the median at half the resolution, where an edge of lit scene stays an edge (block means,
+        # as local_median takes, blur it into false spots along lit patches' rims)
         small = cv2.resize(half, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
         # OpenCV's 8-bit median takes windows up to 255 (frames over 6000 px wide ask for more)
         texture = cv2.medianBlur(small, min(max(int(round(window / 2)) | 1, 3), 255))
@@ -98,9 +119,7 @@ def prominence_level(half: np.ndarray, rings: tuple[int, ...], *, cell: int,
     for radius in rings:
         ring = cv2.dilate(half, _ring(radius))
         level = ring if level is None else cv2.min(level, ring)
-    # the median at half the resolution (upsampled): 0.4 ms at 400x300 where the full one takes 4
-    small = cv2.resize(half, (max(w // 2, 1), max(h // 2, 1)), interpolation=cv2.INTER_AREA)
-    middle = cv2.resize(cv2.medianBlur(small, max(window // 2, 1) | 1), (w, h), interpolation=cv2.INTER_LINEAR)
+    middle = local_median(half, window)
     spread = cv2.absdiff(half, middle).astype(np.float32)
     cells = cv2.resize(spread, (max(w // cell, 3), max(h // cell, 3)), interpolation=cv2.INTER_AREA)
     noise = cv2.medianBlur(cells, 3) * np.float32(1.2533)  # s = sqrt(pi / 2) E|x| for Gaussian noise
