@@ -39,3 +39,14 @@ def test_the_benchmark_scripts_turn_down_counts_below_one(script, args):
     assert out.returncode == 2
     assert "allowed an integer >= 1" in out.stderr and "Traceback" not in out.stderr
     assert out.stdout == ""
+
+
+def test_the_a_b_script_times_an_earlier_commits_detector_beside_this_trees():
+    # HEAD against the tree: both sides run the same frames, every width of the material reported
+    out = subprocess.run([sys.executable, str(SCRIPTS / "bench_ab.py"), "HEAD", "--split", "dev", "--frames", "1"],
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    lines = [line for line in out.stdout.splitlines() if "new / old" in line]
+    assert [line.split()[0] for line in lines] == ["800", "1456"]
+    for line in lines:
+        assert float(line.rsplit(" ", 1)[1]) > 0
