@@ -101,11 +101,15 @@ class PanelProcess:
                 self.url = line.split(": ", 1)[1].strip()
 
     def post(self, action: str) -> str:
-        """Press a button; returns the panel's message."""
+        """Press a button, with the run's token read from the page as the page does; returns the panel's message."""
         import json
+        import re
         import urllib.request
 
-        request = urllib.request.Request(self.url + "action/" + action, method="POST")
+        page = urllib.request.urlopen(self.url, timeout=5).read().decode()
+        token = re.search(r'name="antiscatter-token" content="([^"]+)"', page).group(1)
+        request = urllib.request.Request(self.url + "action/" + action, method="POST",
+                                         headers={"X-Antiscatter-Token": token})
         return json.loads(urllib.request.urlopen(request, timeout=5).read())["message"]
 
     def stats(self) -> dict:

@@ -25,9 +25,9 @@ def panel():
     p.close()
 
 
-def request(panel, method, path, body=None):
+def request(panel, method, path, body=None, headers=None):
     conn = http.client.HTTPConnection(panel.host, panel.port, timeout=5)
-    conn.request(method, path, body=body)
+    conn.request(method, path, body=body, headers=headers or {})
     response = conn.getresponse()
     data = response.read() if "mjpg" not in path else response.read(4096)
     conn.close()
@@ -53,7 +53,7 @@ def test_page_stats_stream_and_actions(panel):
     assert status == 200 and stats["frames"] == 7 and stats["history"][0]["particles"] == 1.0
     status, kind, body = request(panel, "GET", "/stream/input.mjpg")
     assert status == 200 and "multipart/x-mixed-replace" in kind and b"\xff\xd8" in body  # a JPEG
-    status, _, body = request(panel, "POST", "/action/light", body=b"")
+    status, _, body = request(panel, "POST", "/action/light", body=b"", headers={"X-Antiscatter-Token": panel.token})
     assert status == 200 and json.loads(body)["message"] == "light off" and panel.pressed == ["light"]
 
 

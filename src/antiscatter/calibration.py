@@ -130,7 +130,9 @@ class Calibration:
                 "projector_focal_px": self.projector_focal_px, "errors_px": list(self.errors_px)}
         if self.stereo is not None:
             data["stereo"] = self.stereo.as_dict()
-        Path(path).write_text(json.dumps(data, indent=2))
+        from .writing import write_whole
+
+        write_whole(path, json.dumps(data, indent=2).encode())  # whole or not at all (a full disk)
 
 
 def _matrix(value: object, where: str) -> np.ndarray:
@@ -155,6 +157,8 @@ def load_calibration(path: str | Path, *, sizes: tuple[tuple[int, int], tuple[in
         data = json.loads(path.read_text())
     except FileNotFoundError:
         raise UsageError(f"{path}: no such calibration file") from None
+    except IsADirectoryError:
+        raise UsageError(f"{path}: is a folder, expected a calibration file (JSON from 'antiscatter calibrate')") from None
     except (json.JSONDecodeError, UnicodeDecodeError):
         raise UsageError(f"{path}: not a calibration file (expected JSON from 'antiscatter calibrate')") from None
     if not isinstance(data, dict) or data.get("version") != 1:

@@ -804,7 +804,7 @@ def plot_curves(path: str, *, geometry: TwinGeometry, preset: str = "mixed", fra
     (``by_focus``, at the geometry's baseline and 5 ms)."""
     from dataclasses import replace as _replace
 
-    from .bench import _pyplot
+    from .bench import _pyplot, save_figure
 
     runs = {"seed, identity": TwinRun("seed", "identity"),
             "none": TwinRun("contrast", "calibrated"), "coast+predict": TwinRun("contrast", "calibrated", "coast", True),
@@ -862,7 +862,7 @@ def plot_curves(path: str, *, geometry: TwinGeometry, preset: str = "mixed", fra
     fig.legend(handles, labels, loc="lower center", ncol=7, fontsize=7)
     fig.suptitle(f"antiscatter twin: {preset}, {frames} frames; default detector, calibrated mapping (seed: identity)")
     fig.tight_layout(rect=(0, 0.1, 1, 1))
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path)
     plt.close(fig)
     for key, _, _ in panels:
         for results in curves[key].values():

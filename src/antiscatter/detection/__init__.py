@@ -10,6 +10,7 @@ the next ones, and the runtime runs them once the pattern is out.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, fields, is_dataclass
 from typing import Any, Callable
 
@@ -18,20 +19,45 @@ import numpy as np
 from ..detections import Detections
 
 __all__ = ["Stage", "Detector", "DETECTORS", "register_detector", "detector_entry", "make_detector", "detect",
-           "MIN_FRAME_SIDE", "check_frame_size"]
+           "MIN_FRAME_SIDE", "MAX_FRAME_PIXELS", "check_frame_size"]
 
 #: the fewest pixels a frame may have either way: no background cell, ring or half-resolution
 #: working image fits in less (the ``contrast`` detector's at 2x2 blocks must be 3 px or more;
 #: smaller frames crashed OpenCV's resize, and some the interpreter itself)
 MIN_FRAME_SIDE = 8
+#: the most pixels a frame may have, 8192x8192 (64 Mpx, 192 MB as BGR): beyond any camera the
+#: vehicle carries; a typo such as 100000x100000 ran out of memory deep inside a command
+MAX_FRAME_PIXELS = 8192 * 8192
+#: frame-sized buffers a command may hold at once (sources, pipeline, working images, the
+#: twin's pixel grids), counted as BGR bytes: a frame larger than physical memory over this is refused
+FRAME_BUFFERS = 64
+
+
+@functools.cache
+def _physical_memory() -> int | None:
+    """Bytes of physical memory, None where the system does not say."""
+    import os
+
+    try:
+        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
 
 
 def check_frame_size(width: int, height: int, what: str = "frame", *, error: type[Exception] = ValueError) -> None:
     """``error`` (ValueError, or the caller's: a UsageError for input from the command line) naming
-    ``what`` when a frame of ``width`` x ``height`` px is too small to detect in."""
+    ``what`` when a frame of ``width`` x ``height`` px is too small to detect in or too large to hold:
+    more than ``MAX_FRAME_PIXELS``, or ``FRAME_BUFFERS`` BGR copies beyond physical memory.
+    The one limit every command checks before it allocates a frame."""
     if width < MIN_FRAME_SIDE or height < MIN_FRAME_SIDE:
         raise error(f"{what} of {width}x{height} px: too small, allowed at least "
                          f"{MIN_FRAME_SIDE}x{MIN_FRAME_SIDE}")
+    memory = _physical_memory()
+    limit = MAX_FRAME_PIXELS if memory is None else min(MAX_FRAME_PIXELS, memory // (3 * FRAME_BUFFERS))
+    if width * height > limit:
+        why = "" if limit == MAX_FRAME_PIXELS else f" ({memory / 2 ** 30:.1f} GB of memory)"
+        raise error(f"{what} of {width}x{height} px: too large, allowed at most {limit / 1e6:.1f} million pixels"
+                    f"{why}")
 
 
 @dataclass(frozen=True)

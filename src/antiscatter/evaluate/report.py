@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 import datetime as _dt
 import math
 import os
@@ -13,6 +12,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..detection import DETECTORS, make_detector
+from ..writing import CsvFile
 from .metrics import FrameScore, summarise
 
 __all__ = ["format_summary", "write_frame_csv", "plot_evaluation", "scoreboard", "format_heldout", "heldout_markdown"]
@@ -44,16 +44,14 @@ def write_frame_csv(scores: list[FrameScore], path: str | Path) -> None:
     """One row per frame: counts, precision, recall, F1, centre error (and pixel metrics)."""
     rows = [s.row() for s in scores]
     header = list(rows[0]) if rows else ["frame", "tp", "fp", "fn", "precision", "recall", "f1"]
-    with Path(path).open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=header)
-        writer.writeheader()
-        writer.writerows(rows)
+    with CsvFile(path, header) as out:  # whole rows only, however a full disk cuts it
+        out.writerows([row.get(key, "") for key in header] for row in rows)
 
 
 def plot_evaluation(path: str | Path, scores: list[FrameScore],
                     sweep: list[tuple[float, dict[str, float]]] | None = None, *, title: str = "") -> None:
     """Precision-recall over the detector's threshold (when swept), centre-error histogram, F1 per frame."""
-    from ..bench import _pyplot
+    from ..bench import _pyplot, save_figure
 
     plt = _pyplot()
     panels = 3 if sweep else 2
@@ -84,7 +82,7 @@ def plot_evaluation(path: str | Path, scores: list[FrameScore],
     ax.set_title("F1 per frame")
     fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path)
     plt.close(fig)
 
 

@@ -33,7 +33,7 @@ class FrameTruth:
 
 def _rows(path: Path) -> tuple[list[str] | None, list[tuple[int, list[str]]]]:
     """(the first row, stripped -- a header, or a MOTChallenge line --, the other rows numbered
-    from 2); (None, []) for an empty file."""
+    from 2); (None, []) for an empty file.  A file that is not UTF-8 is an error naming it."""
     try:
         handle = path.open(newline="")
     except FileNotFoundError:
@@ -42,10 +42,13 @@ def _rows(path: Path) -> tuple[list[str] | None, list[tuple[int, list[str]]]]:
         raise UsageError(f"{path}: is a folder, expected a CSV file") from None
     with handle:
         reader = csv.reader(handle)
-        header = next(reader, None)
-        if header is None:
-            return None, []
-        return [h.strip() for h in header], list(enumerate(reader, start=2))
+        try:
+            header = next(reader, None)
+            if header is None:
+                return None, []
+            return [h.strip() for h in header], list(enumerate(reader, start=2))
+        except UnicodeDecodeError:
+            raise UsageError(f"{path}: not UTF-8 text; allowed a UTF-8 CSV file") from None
 
 
 def _index(path: Path, header: list[str], required: tuple[str, ...]) -> dict[str, int]:
@@ -160,6 +163,8 @@ def read_truth(path: str | Path, *, min_visibility: float = 0.5, min_snr: float 
     for line, row in rows:
         if not row:
             continue
+        if len(row) > len(index):
+            raise UsageError(f"{path} row {line}: has {len(row)} fields, the header has {len(index)}")
         try:
             text = row[index[c_frame]].strip()
             if plain and frame_names is not None and text in frame_names:
@@ -216,16 +221,16 @@ def read_detections(path: str | Path, *, frames: range | None = None,
     MOTChallenge results (another tracker's: see ``MOT_COLUMNS``; frames from 1, each box a disc)
     -> {frame: (centres, radii, track ids or -1)}.
 
-    An empty file (or a header alone) is valid: no detections.  ``frames`` is the
+    A header alone is valid: no detections; an empty file (no header: not written by ``run``, or cut
+    short) is refused, as is a row with more fields than the header.  ``frames`` is the
     range of frames the truth covers; a detection outside it is an error naming
     the row (``frames_source`` names the truth in the message).
     """
     path = Path(path)
-    if path.exists() and path.is_file() and path.stat().st_size == 0:
-        return {}
     header, rows = _rows(path)
     if header is None:
-        return {}
+        raise UsageError(f"{path}: empty; expected the header frame,x,y,radius[,track_id] (a run that found "
+                         "nothing writes the header alone) or MOTChallenge lines")
     mot = _is_mot(header)
     if mot:  # another tracker's MOTChallenge results: its boxes as discs, its ids
         boxes = ((line, frame, x, y, r, ident) for line, frame, ident, x, y, r, _, _ in _mot_rows(path, header, rows))
@@ -247,6 +252,8 @@ def _detection_rows(path: Path, index: dict[str, int], rows: list[tuple[int, lis
     for line, row in rows:
         if not row:
             continue
+        if len(row) > len(index):
+            raise UsageError(f"{path} row {line}: has {len(row)} fields, the header has {len(index)}")
         try:
             frame = int(_number(path, line, "frame", row[index["frame"]], integer=True))
             x = _number(path, line, "x", row[index["x"]])

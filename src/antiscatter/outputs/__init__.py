@@ -11,9 +11,18 @@ from __future__ import annotations
 from ..errors import UsageError
 from .base import LightOutput, NullOutput
 
-__all__ = ["LightOutput", "NullOutput", "open_output", "OUTPUT_KINDS"]
+__all__ = ["LightOutput", "NullOutput", "open_output", "check_output", "OUTPUT_KINDS"]
 
 OUTPUT_KINDS = ("framebuffer[:/dev/fbN]", "kms", "window", "files:DIR", "files:NAME.mkv", "none", "auto")
+
+
+def check_output(spec: str) -> None:
+    """Check the file or folder of a ``files:`` output before any work (UsageError, one line);
+    other outputs are devices, checked when opened."""
+    kind, _, arg = spec.partition(":")
+    if kind == "files":
+        from .files import check_files_target
+        check_files_target(arg)
 
 
 def open_output(spec: str, *, fps: float = 60.0) -> LightOutput:

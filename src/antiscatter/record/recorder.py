@@ -7,7 +7,10 @@ pixel format keeps what the source gives: ``gray`` for a grey / Y-plane frame,
 ``overflow`` policy decides: ``spill`` keeps frames in order in a temporary
 file on disk until the encoder catches up, ``stop`` stops recording with a
 message (``RecorderFull``).  ``close()`` encodes every frame taken and closes
-the container, so a run stopped by Ctrl-C or SIGTERM leaves a valid file.
+the container, so a run stopped by Ctrl-C or SIGTERM leaves a valid file.  A full disk
+(the file's, or the spill file's in ``TMPDIR``) stops the recording: ``write`` raises
+:class:`~antiscatter.errors.WriteError`, and ``close()`` still closes the file and counts the
+frames it holds.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import UsageError
+from ..writing import video_frames, write_failed
 
 __all__ = ["Recorder", "RecorderFull", "pixel_format"]
 
@@ -65,7 +69,10 @@ class Recorder:
         self.buffer_bytes = buffer_bytes
         self.overflow = overflow
         self.slices, self.threads = slices, threads
-        self.container = av.open(str(self.path), mode="w", format="matroska")
+        # clusters of at most a second, each written out as it ends: a recording cut short (a full
+        # disk, a crash) loses at most that
+        self.container = av.open(str(self.path), mode="w", format="matroska",
+                                 options={"cluster_time_limit": "1000", "flush_packets": "1"})
         self.stream: Any = None
         self.shape: tuple[int, ...] | None = None
         self.format = ("", "")
@@ -87,6 +94,8 @@ class Recorder:
     # ------------------------------------------------------------ producer
     def write(self, image: np.ndarray) -> None:
         """Take one frame (copied: the caller may reuse its buffer)."""
+        if isinstance(self._error, OSError):
+            raise write_failed(self.path, self._error, f"recording stopped after {self.frames_in} frames")
         if self._error is not None:
             raise RuntimeError(f"{self.path}: encoder failed ({self._error})")
         if self.shape is None:
@@ -103,7 +112,13 @@ class Recorder:
                 if self._spill is None:
                     self._spill = tempfile.TemporaryFile(prefix="antiscatter-spill-")
                 offset = self._spill.seek(0, 2)
-                self._spill.write(np.ascontiguousarray(image).tobytes())
+                try:
+                    self._spill.write(np.ascontiguousarray(image).tobytes())
+                    self._spill.flush()
+                except OSError as exc:  # TMPDIR is full: the frames taken so far are still encoded
+                    self._spill_failed(offset)
+                    raise write_failed(f"the spill file in {tempfile.gettempdir()}", exc,
+                                       f"recording stopped after {self.frames_in} frames") from None
                 self._queue.append(("spill", offset))
                 self._spilled += 1
                 self.frames_spilled += 1
@@ -113,6 +128,14 @@ class Recorder:
                                    f"{self.frames_in} frames")
             self.frames_in += 1
             self._cond.notify()
+
+    def _spill_failed(self, offset: int) -> None:
+        """Cut the spill file back to its whole frames after a failed write (the caller holds the lock)."""
+        try:
+            self._spill.truncate(offset)
+            self._spill.seek(offset)
+        except (OSError, ValueError):
+            pass
 
     # ------------------------------------------------------------ consumer
     def _next(self) -> np.ndarray | None:
@@ -157,7 +180,11 @@ class Recorder:
             self._error = exc
 
     def close(self) -> dict[str, float]:
-        """Encode everything taken, finish the file; returns the summary figures."""
+        """Encode everything taken, finish the file; returns the summary figures.
+
+        After a write the disk refused, the file is closed all the same and ``frames`` counts the
+        frames it holds (readable up to there); ``error`` then says what failed.
+        """
         with self._cond:
             self._closing = True
             self._cond.notify_all()
@@ -166,17 +193,30 @@ class Recorder:
             if self.stream is not None and self._error is None:
                 for packet in self.stream.encode(None):
                     self.container.mux(packet)
+        except OSError as exc:
+            self._error = exc
         finally:
-            self.container.close()
+            try:
+                self.container.close()  # (releases the file even when the trailer cannot be written)
+            except OSError as exc:
+                self._error = self._error or exc
             if self._spill is not None:
                 self._spill.close()
-        if self._error is not None:
+        if self._error is not None and not isinstance(self._error, OSError):
             raise RuntimeError(f"{self.path}: encoder failed ({self._error})")
         seconds = time.perf_counter() - self.started
-        size = self.path.stat().st_size if self.path.exists() else 0  # no frame taken: no file
-        return {"frames": self.frames_encoded, "dropped": self.frames_in - self.frames_encoded,
-                "spilled": self.frames_spilled, "bytes": size, "seconds": seconds,
-                "encode_fps": self.frames_encoded / self.encode_seconds if self.encode_seconds else 0.0}
+        # no frame encoded: no file of ours (an existing one is left as it was, not counted)
+        size = self.path.stat().st_size if self.stream is not None and self.path.exists() else 0
+        frames = self.frames_encoded
+        figures: dict = {}
+        if self._error is not None:
+            frames = video_frames(self.path) if self.stream is not None else 0
+            figures["error"] = f"{self._error.strerror or self._error}"
+        figures = {"frames": frames, "dropped": self.frames_in - frames,
+                   "spilled": self.frames_spilled, "bytes": size, "seconds": seconds,
+                   "encode_fps": self.frames_encoded / self.encode_seconds if self.encode_seconds else 0.0,
+                   **figures}
+        return figures
 
     def __enter__(self) -> "Recorder":
         return self

@@ -87,12 +87,15 @@ def load_background(path: str | Path, size: tuple[int, int]) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise UsageError(f"--background {path}: no such file")
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    from ..sources.base import quiet_opencv
+
+    with quiet_opencv(errors=True):  # the one line below says what failed, without OpenCV's and FFmpeg's first
+        image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if image is None:
+            cap = cv2.VideoCapture(str(path))
+            ok, image = cap.read() if cap.isOpened() else (False, None)
+            cap.release()
     if image is None:
-        cap = cv2.VideoCapture(str(path))
-        ok, image = cap.read() if cap.isOpened() else (False, None)
-        cap.release()
-        if not ok:
-            raise UsageError(f"--background {path}: not a readable image or video")
+        raise UsageError(f"--background {path}: not a readable image or video")
     image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
     return image.astype(np.float32) / 255.0

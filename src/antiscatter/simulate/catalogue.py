@@ -38,8 +38,8 @@ def load_catalogue(path: str | Path | None = None) -> tuple[int, dict[str, Scena
     else:
         try:
             text = Path(path).read_text()
-        except OSError:
-            raise UsageError(f"{path}: cannot read the scenario catalogue") from None
+        except (OSError, UnicodeDecodeError):
+            raise UsageError(f"{path}: cannot read the scenario catalogue (allowed a UTF-8 TOML file)") from None
         where = str(path)
     try:
         data = tomllib.loads(text)

@@ -2,11 +2,12 @@
 
 Everything is written to a staging folder inside OUT and moved into place at
 the end, so an interrupted or failed run leaves nothing that looks complete.
+The staging folder is removed however the run ends (a full disk, Ctrl-C,
+SIGTERM); one left by a killed run is removed by the next run into OUT.
 """
 
 from __future__ import annotations
 
-import csv
 import os
 import shutil
 import sys
@@ -20,7 +21,8 @@ from typing import TextIO
 import cv2
 import numpy as np
 
-from ..errors import UsageError, check_output_path
+from ..errors import UsageError, check_output_folder, check_output_path
+from ..writing import CsvFile, write_whole
 from ..sources.folder import list_frames
 from . import make_scene
 from .truth import TRUTH_COLUMNS
@@ -81,6 +83,7 @@ def _check(request: SimulationRequest) -> None:
     out = request.out
     if out.exists() and not out.is_dir():
         raise UsageError(f"{out}: exists and is not a folder")
+    check_output_folder(out, "OUT")  # writable, or made here (one level: its own folder must exist)
     if request.video is not None:
         if request.video.parent.resolve() != out.resolve():  # OUT itself is created by the run
             check_output_path(request.video, "--video")
@@ -100,11 +103,13 @@ def simulate(request: SimulationRequest, *, log: TextIO = sys.stderr) -> dict[st
                        background=request.background)
     width, height = scene.size
     out = request.out
-    out.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=".partial-", dir=out))
+    out.mkdir(exist_ok=True)
+    _remove_stale_staging(out)
+    staging = Path(tempfile.mkdtemp(prefix=STAGING_PREFIX, dir=out))
     video_partial = None
     container = stream = None
     try:
+        (staging / STAGING_PID).write_text(str(os.getpid()))
         if request.masks:
             (staging / "masks").mkdir()
         if request.video is not None:
@@ -120,9 +125,7 @@ def simulate(request: SimulationRequest, *, log: TextIO = sys.stderr) -> dict[st
         rows = 0
         progress = Progress(request.frames)
         started = time.perf_counter()
-        with (staging / "truth.csv").open("w", newline="") as handle:
-            writer = csv.writer(handle)
-            writer.writerow(TRUTH_COLUMNS)
+        with CsvFile(staging / "truth.csv", TRUTH_COLUMNS) as writer:
             for index in range(request.frames):
                 if index:
                     scene.step()
@@ -134,10 +137,10 @@ def simulate(request: SimulationRequest, *, log: TextIO = sys.stderr) -> dict[st
                     frame = av.VideoFrame.from_ndarray(image, format="bgr24")
                     for packet in stream.encode(frame):
                         container.mux(packet)
-                elif not cv2.imwrite(str(staging / f"{index}.png"), image):
-                    raise OSError(f"{staging / f'{index}.png'}: could not be written")
+                else:  # (cv2.imwrite reports success for a file the disk cut short)
+                    write_whole(staging / f"{index}.png", _png(image))
                 if labels is not None:
-                    cv2.imwrite(str(staging / "masks" / f"{index}.png"), labels)
+                    write_whole(staging / "masks" / f"{index}.png", _png(labels))
                 progress.update(index + 1)
         if container is not None:
             for packet in stream.encode(None):
@@ -150,7 +153,10 @@ def simulate(request: SimulationRequest, *, log: TextIO = sys.stderr) -> dict[st
             os.replace(video_partial, request.video)
     except BaseException:
         if container is not None:
-            container.close()
+            try:
+                container.close()
+            except OSError:
+                pass  # (its file is removed next)
         if video_partial is not None and video_partial.exists():
             video_partial.unlink()
         raise
@@ -160,6 +166,45 @@ def simulate(request: SimulationRequest, *, log: TextIO = sys.stderr) -> dict[st
             "fps": request.frames / seconds if seconds > 0 else 0.0}
 
 
+#: the hidden staging folder's name prefix inside OUT, and the file in it naming the process writing it
+STAGING_PREFIX = ".partial-"
+STAGING_PID = "pid"
+#: seconds after which a staging folder without a readable pid file is taken as a killed run's
+STALE_SECONDS = 3600.0
+
+
+def _remove_stale_staging(out: Path) -> None:
+    """Remove staging folders in ``out`` that killed runs left: their process no longer exists
+    (or, without a readable pid file, nothing was written in them for ``STALE_SECONDS``).  A
+    concurrent run's folder stays."""
+    for folder in out.glob(f"{STAGING_PREFIX}*"):
+        if not folder.is_dir():
+            continue
+        try:
+            pid = int((folder / STAGING_PID).read_text())
+        except (OSError, ValueError):
+            pid = 0
+        if pid:
+            try:
+                os.kill(pid, 0)
+                continue  # alive: a run writing into OUT now
+            except ProcessLookupError:
+                pass
+            except PermissionError:
+                continue  # alive, another user's
+        elif time.time() - folder.stat().st_mtime < STALE_SECONDS:
+            continue
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def _png(image: np.ndarray) -> bytes:
+    """``image`` as PNG bytes (8-bit frames, 16-bit label masks)."""
+    ok, data = cv2.imencode(".png", image)
+    if not ok:
+        raise ValueError(f"an image of shape {image.shape} could not be encoded as PNG")
+    return data.tobytes()
+
+
 def _move_into_place(staging: Path, out: Path, *, overwrite: bool) -> None:
     if overwrite:
         for old in list_frames(out):
@@ -167,7 +212,7 @@ def _move_into_place(staging: Path, out: Path, *, overwrite: bool) -> None:
         if (out / "masks").is_dir():
             shutil.rmtree(out / "masks")
     for item in staging.iterdir():
-        if item.name == "truth.csv":
+        if item.name in ("truth.csv", STAGING_PID):
             continue
         os.replace(item, out / item.name)
     os.replace(staging / "truth.csv", out / "truth.csv")  # last: its presence marks completion

@@ -2,7 +2,9 @@
 
 ``sim`` (or nothing) the built-in simulator; ``camera`` the Pi camera;
 ``webcam:N`` an OpenCV capture device; a folder of frames (``<int>.png``, or
-images named in order: see :func:`~.folder.frame_files`); a video file.
+images named in order: see :func:`~.folder.frame_files`); a video file.  A keyword that is
+also the name of a file or folder here is refused as ambiguous (``sim:`` / ``camera:`` for the
+source, ``./sim`` for the folder); an empty name is refused.
 """
 
 from __future__ import annotations
@@ -10,6 +12,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+from ..detection import check_frame_size
 from ..errors import UsageError
 from .base import Frame, FrameSource
 from .folder import FolderSource, frame_files, list_frames
@@ -19,6 +22,9 @@ __all__ = ["Frame", "FrameSource", "FolderSource", "VideoSource", "open_source",
            "list_frames", "frame_files", "parse_crop", "SOURCE_KINDS"]
 
 SOURCE_KINDS = ("sim", "camera", "webcam:N", "<folder of frames>", "<video file>")
+#: sources named by a keyword; ``sim:`` and ``camera:`` name them even where a file or folder of
+#: that name is in the current folder (``./sim`` names the folder)
+KEYWORDS = {"sim": "the simulator", "camera": "the camera"}
 
 _WEBCAM = re.compile(r"^webcam:(\d+)$")
 
@@ -28,8 +34,23 @@ def open_source(spec: str, *, crop: tuple[int, int, int, int] | None = None, loo
                 size: tuple[int, int] | None = None, fps: float | None = None,
                 colour: bool = False, exposure_ms: float | None = None,
                 gain: float | None = None) -> FrameSource:
-    """Open the source named by ``spec`` (see the module docstring)."""
-    spec = spec or "sim"
+    """Open the source named by ``spec`` (see the module docstring); ``size`` (width, height) px is
+    checked against the frame-size limits, and the camera's exposure and gain against its rule,
+    for every source and before anything is allocated."""
+    if not spec or not spec.strip():
+        raise UsageError(f"source {spec!r}: empty; allowed: {', '.join(SOURCE_KINDS)}")
+    if spec in KEYWORDS and Path(spec).exists():
+        kind = "folder" if Path(spec).is_dir() else "file"
+        raise UsageError(f"source {spec!r}: ambiguous, a {kind} named {spec} is in this folder; write ./{spec} "
+                         f"for the {kind} or {spec}: for {KEYWORDS[spec]}")
+    if spec.endswith(":") and spec[:-1] in KEYWORDS:
+        spec = spec[:-1]
+    if size is not None:
+        check_frame_size(*size, what=f"source {spec}: frames", error=UsageError)
+    if exposure_ms is not None or gain is not None:  # the camera's own rule, whatever the source
+        from .camera import camera_controls
+
+        camera_controls(fps or 60.0, exposure_ms, gain)
     if crop is not None and spec in ("sim", "camera") or (crop is not None and _WEBCAM.match(spec)):
         raise UsageError(f"--crop applies to video files only, not to source {spec!r}")
     if spec == "sim":

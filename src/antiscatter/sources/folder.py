@@ -64,20 +64,37 @@ def read_frame(path: Path, bits: int | None = None) -> tuple[np.ndarray, int]:
     10-, 12-, 14- or 16-bit samples: ``bits`` -- the depth, found from the first frame of a
     sequence so every frame is scaled alike -- is the least of 10, 12, 14, 16 that holds the
     brightest sample when not given, and the samples are scaled to 8 bits by it (OpenCV's own
-    conversion drops the low byte, leaving 12-bit data at 0-15).  Other sample types are refused."""
+    conversion drops the low byte, leaving 12-bit data at 0-15).  Other sample types, and a file
+    whose depth differs from ``bits`` (8 against 10-16), are refused."""
     with quiet_opencv(errors=True):
         image = cv2.imread(str(path), cv2.IMREAD_COLOR | cv2.IMREAD_ANYDEPTH)
     if image is None:
         raise UsageError(f"{path}: not a readable image")
     check_frame_size(image.shape[1], image.shape[0], what=f"{path}: image", error=UsageError)
+    if image.dtype not in (np.uint8, np.uint16):
+        raise UsageError(f"{path}: {image.dtype} samples; allowed 8- or 16-bit images")
+    depth, first = (8 if image.dtype == np.uint8 else 16), (8 if bits == 8 else 16)
+    if bits is not None and depth != first:  # scaled by the other depth, it would saturate or go black
+        raise UsageError(f"{path}: a {depth}-bit image where the frames before it are {first}-bit; allowed "
+                         "frames of one bit depth")
     if image.dtype == np.uint8:
         return image, 8
-    if image.dtype != np.uint16:
-        raise UsageError(f"{path}: {image.dtype} samples; allowed 8- or 16-bit images")
     if bits is None:
         peak = int(image.max())
         bits = next(b for b in (10, 12, 14, 16) if peak < 1 << b)
     return cv2.convertScaleAbs(image, alpha=255.0 / ((1 << bits) - 1)), bits
+
+
+def _png_depth(path: Path) -> int | None:
+    """8 or 16: the sample depth a PNG's header declares as OpenCV reads it (1-8 bits as 8); None for
+    other files.  Read from 25 bytes, so a whole folder is checked before any frame is used."""
+    if path.suffix.lower() != ".png":
+        return None
+    with path.open("rb") as handle:
+        head = handle.read(25)
+    if len(head) < 25 or head[:8] != b"\x89PNG\r\n\x1a\n" or head[12:16] != b"IHDR":
+        return None
+    return 16 if head[24] == 16 else 8
 
 
 class FolderSource(FrameSource):
@@ -99,6 +116,12 @@ class FolderSource(FrameSource):
         self._bits: int | None = None  # the sample depth, from the first frame
         first = self._load(self.paths[0])
         self.size = (first.shape[1], first.shape[0])
+        depth = 8 if self._bits == 8 else 16
+        for path in self.paths[1:]:  # one depth throughout, checked before any frame is used
+            other = _png_depth(path)
+            if other is not None and other != depth:
+                raise UsageError(f"{path}: a {other}-bit image where the frames before it are {depth}-bit; "
+                                 "allowed frames of one bit depth")
         self._first = first
 
     def _load(self, path: Path):

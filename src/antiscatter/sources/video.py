@@ -33,6 +33,7 @@ class VideoSource(FrameSource):
 
     crop: (x0, x1, y0, y1) region kept, must lie inside the frame.
     loop: reopen at the end and play again.
+    A file that ends before the frame count its container declares sets ``damaged``.
     """
 
     name = "video"
@@ -65,6 +66,7 @@ class VideoSource(FrameSource):
         self.crop = crop
         self._count = 0
         self._decoded_this_pass = 0
+        self._declared = int(self._cap.get(cv2.CAP_PROP_FRAME_COUNT))  # the container's count; <= 0 unknown
 
     def _open(self) -> cv2.VideoCapture:
         with quiet_opencv():
@@ -76,6 +78,10 @@ class VideoSource(FrameSource):
     def read(self) -> Frame | None:
         ok, image = self._cap.read()
         if not ok:
+            # ended short of the container's count (one frame's rounding allowed): cut short or damaged
+            if not self.damaged and self._count == self._decoded_this_pass < self._declared - 1:
+                self.damaged = (f"{self.path}: ended after {self._decoded_this_pass} of the {self._declared} "
+                                "frames its container declares (cut short or damaged); the frames read were used")
             if not self.loop or self._decoded_this_pass == 0:
                 return None
             self._cap.release()
