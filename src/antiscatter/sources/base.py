@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -16,10 +17,14 @@ __all__ = ["Frame", "FrameSource", "quiet_opencv"]
 @contextmanager
 def quiet_opencv(*, errors: bool = False) -> Iterator[None]:
     """Silence OpenCV's own warnings (device probing) so errors stay one line; ``errors``: its
-    error messages too (a file it cannot decode: ours names the file and says so)."""
-    logging = cv2.utils.logging
+    error messages too (a file it cannot decode: ours names the file and says so).  FFmpeg's log
+    lines inside OpenCV (a damaged file's) are silenced for the process when this runs before its
+    first video is opened: the source says what it found instead (set OPENCV_FFMPEG_LOGLEVEL to see them)."""
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET, read once by OpenCV's FFmpeg
+    # cv2.utils.logging where the wheel has it (5.x); else the top-level calls (4.11, for numpy 1.24)
+    logging = getattr(cv2.utils, "logging", cv2)
     previous = logging.getLogLevel()
-    logging.setLogLevel(logging.LOG_LEVEL_SILENT if errors else logging.LOG_LEVEL_ERROR)
+    logging.setLogLevel(0 if errors else 2)  # LOG_LEVEL_SILENT, LOG_LEVEL_ERROR
     try:
         yield
     finally:
@@ -61,6 +66,7 @@ class FrameSource:
     size: tuple[int, int] = (0, 0)  # (width, height) of delivered frames
     fps: float = 0.0  # nominal rate, 0 when unknown
     live: bool = False  # frames come whether or not they are taken (a camera): may be dropped
+    damaged: str = ""  # why the source ended before its declared end (a file cut short), "" when it did not
 
     def read(self) -> Frame | None:
         raise NotImplementedError

@@ -18,7 +18,7 @@ class WebcamSource(FrameSource):
 
     def __init__(self, index: int, *, size: tuple[int, int] | None = None) -> None:
         self.index = index
-        with quiet_opencv():
+        with quiet_opencv(errors=True):  # OpenCV 4.x logs a missing device as an error: ours says it below
             self._cap = cv2.VideoCapture(index)
         if not self._cap.isOpened():
             raise UsageError(f"webcam:{index}: no capture device {index} could be opened")
