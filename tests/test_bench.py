@@ -31,3 +31,51 @@ def test_the_chain_floor_finds_known_discs_and_nothing_on_plain_water(grey):
         assert radii[i] == pytest.approx(r, abs=1.5)
     centres, radii = minimal_chain(plain)
     assert centres.shape == (0, 2) and radii.shape == (0,)
+
+
+def _frames_with_discs(count, size=(320, 240)):
+    rng = np.random.default_rng(1)
+    frames = []
+    for i in range(count):
+        image = np.full((size[1], size[0], 3), 40, np.uint8)
+        for x, y in rng.uniform(20, [size[0] - 20, size[1] - 20], (6, 2)):
+            cv2.circle(image, (int(x), int(y)), 3, (220, 220, 220), -1)
+        frames.append(image)
+    return frames
+
+
+@pytest.mark.parametrize("kind", ["folder", "video"])
+def test_bench_times_any_source_on_its_own_frames(tmp_path, kind):
+    from conftest import run_cli, write_ffv1
+
+    frames = _frames_with_discs(4)
+    if kind == "folder":
+        source = tmp_path / "frames"
+        source.mkdir()
+        for i, image in enumerate(frames):
+            cv2.imwrite(str(source / f"{i:03d}.png"), image)
+    else:
+        source = tmp_path / "dive.mkv"
+        write_ffv1(source, frames)
+    result = run_cli("bench", str(source), "--frames", "6", "--distinct", "3", "--json")
+    assert result.code == 0, result.err
+    import json
+
+    report = json.loads(result.out)
+    (entry,) = report["sizes"]
+    assert entry["size"] == "320x240" and entry["preset"] == str(source)
+    for name in ("seed", "contrast"):
+        total = entry["detectors"][name]["total"]
+        assert 0 < total["median_us"] <= total["max_us"]
+    assert entry["detectors"]["contrast"]["particles_per_frame"] == pytest.approx(6, abs=1)
+
+
+def test_bench_refuses_a_source_with_sizes_and_a_source_without_frames(tmp_path):
+    from conftest import run_cli
+
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    result = run_cli("bench", "sim", "--sizes", "800x600")
+    assert result.code == 2 and "goes without --sizes" in result.err
+    result = run_cli("bench", str(empty), "--frames", "2")
+    assert result.code == 2 and "Traceback" not in result.err and str(empty) in result.err

@@ -18,6 +18,7 @@ import os
 import platform
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import cv2
@@ -143,85 +144,127 @@ def pool_index(k: int, distinct: int) -> int:
     return k if k < distinct else 2 * distinct - 2 - k
 
 
+def simulator_pool(width: int, height: int, preset: str, *, distinct: int = 20, seed: int = 0) -> list[np.ndarray]:
+    """``distinct`` BGR frames of the simulator's ``preset`` at ``width`` x ``height``, 3 steps apart."""
+    scene = make_scene(preset, rng=np.random.default_rng(seed), size=(width, height))
+    pool = []
+    for i in range(distinct):
+        if i:
+            for _ in range(3):
+                scene.step()
+        pool.append(scene.render())
+    return pool
+
+
+def source_pool(spec: str, *, distinct: int = 20) -> list[np.ndarray]:
+    """The first ``distinct`` frames of any source ``run`` takes (a folder, a video file, ``sim``),
+    as the source delivers them (BGR or grey); a one-line UsageError when it gives none."""
+    from .errors import UsageError
+    from .sources import open_source
+
+    pool = []
+    with open_source(spec) as source:
+        while len(pool) < distinct:
+            frame = source.read()
+            if frame is None:
+                break
+            pool.append(np.ascontiguousarray(frame.image))
+    if not pool:
+        raise UsageError(f"bench {spec}: the source gave no frame")
+    if len({image.shape for image in pool}) > 1:
+        raise UsageError(f"bench {spec}: frames of different sizes ({pool[0].shape[1]}x{pool[0].shape[0]} and "
+                         "others); bench takes one size a source")
+    return pool
+
+
 def bench(*, detectors: list[str] | None = None, frames: int = 200, threads: int = 1,
           sizes: tuple[tuple[int, int, str], ...] = DEFAULT_SIZES, distinct: int = 20,
-          seed: int = 0, input: str = "bgr") -> BenchResult:
+          seed: int = 0, input: str = "bgr", source: str | None = None) -> BenchResult:
     """Time every detector's stages on ``frames`` frames per size (``distinct`` different ones, played
     forwards and back: :func:`pool_index`).
 
+    sizes: (width, height, simulator preset) of each pool when ``source`` is None.
+    source: a source ``run`` takes (a folder, a video file, ``sim``): its first ``distinct`` frames
+        are the one pool instead, so speed is measured on the frames that matter.
     input: "bgr" (video files, the simulator, webcams) or "y" (the luma plane alone, as the
-    Pi camera's YUV420 stream delivers it; computed before timing).
+        Pi camera's YUV420 stream delivers it; computed before timing).
     """
     if input not in ("bgr", "y"):
         raise ValueError(f"input: got {input!r}, allowed bgr or y")
     names = detectors or list(DETECTORS)
-    built = {name: make_detector(name) for name in names}
+    if source is not None:
+        pools = [(source, source_pool(source, distinct=distinct))]
+    else:
+        pools = [(preset, simulator_pool(w, h, preset, distinct=distinct, seed=seed)) for w, h, preset in sizes]
     previous = cv2.getNumThreads()
     cv2.setNumThreads(threads)
     try:
         results = []
-        for width, height, preset in sizes:
-            scene = make_scene(preset, rng=np.random.default_rng(seed), size=(width, height))
-            pool = []
-            for i in range(distinct):
-                if i:
-                    for _ in range(3):
-                        scene.step()
-                frame = scene.render()
-                pool.append(cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY) if input == "y" else frame)
-            copy_target = np.empty_like(pool[0])
-            for image in pool:
-                minimal_chain(image)
-            per_stage: dict[str, dict[str, list[int]]] = {
-                n: {s.name: [] for s in d.stages} for n, d in built.items()}
-            totals: dict[str, list[int]] = {n: [] for n in built}
-            counts: dict[str, list[int]] = {n: [] for n in built}
-            copies: list[int] = []
-            chains: list[int] = []
-            order = list(built)
-            for name in order:  # warm-up: first calls allocate, learnt backgrounds settle (steady state)
-                for image in pool:
-                    built[name].detect(image)
-            for k in range(frames):
-                image = pool[pool_index(distinct + k, distinct)]
-                t0 = time.perf_counter_ns()
-                np.copyto(copy_target, image)
-                copies.append(time.perf_counter_ns() - t0)
-                t0 = time.perf_counter_ns()
-                minimal_chain(image)
-                chains.append(time.perf_counter_ns() - t0)
-                rotated = order[k % len(order):] + order[:k % len(order)]
-                for name in rotated:
-                    detections, durations = time_stages(built[name], image)
-                    for stage, ns in zip(built[name].stages, durations):
-                        per_stage[name][stage.name].append(ns)
-                    totals[name].append(sum(durations))
-                    counts[name].append(len(detections))
-            floor = float(np.median(copies)) / 1e3
-            chain = float(np.median(chains)) / 1e3
-            seed_median = float(np.median(totals["seed"])) / 1e3 if "seed" in totals else None
-            entry = {"size": f"{width}x{height}", "preset": preset, "copy_floor_us": _stats(copies),
-                     "chain_floor_us": _stats(chains),
-                     "chain_speedup_vs_seed": (seed_median / chain) if seed_median else None,
-                     "detectors": {}, "_samples": {}}
-            for name, d in built.items():
-                total = _stats(totals[name])
-                entry["detectors"][name] = {
-                    "stages": {s.name: {"label": s.label, **_stats(per_stage[name][s.name])} for s in d.stages},
-                    "total": total,
-                    "particles_per_frame": float(np.mean(counts[name])),
-                    "fps": 1e6 / total["median_us"] if total["median_us"] else float("inf"),
-                    "speedup_vs_seed": (seed_median / total["median_us"]) if seed_median else None,
-                    "x_floor": total["median_us"] / floor if floor else None,
-                    "x_chain": total["median_us"] / chain if chain else None,
-                }
-                for stage in d.stages:
-                    entry["_samples"][f"{name}: {stage.label}"] = np.asarray(per_stage[name][stage.name]) / 1e3
-                entry["_samples"][f"{name}: total"] = np.asarray(totals[name]) / 1e3
-            results.append(entry)
+        for label_, pool in pools:
+            if input == "y":
+                pool = [cv2.cvtColor(f, cv2.COLOR_BGR2GRAY) if f.ndim == 3 else f for f in pool]
+            else:
+                pool = [cv2.cvtColor(f, cv2.COLOR_GRAY2BGR) if f.ndim == 2 else f for f in pool]
+            results.append(_bench_pool({name: make_detector(name) for name in names}, pool, label_, frames))
     finally:
         cv2.setNumThreads(previous)
     return BenchResult(machine_description(), threads, frames, results, input)
+
+
+def _bench_pool(built: dict[str, Any], pool: list[np.ndarray], label_: str, frames: int) -> dict[str, Any]:
+    """One pool's entry of :func:`bench`: every detector (fresh, warmed up over the pool) and the
+    copy and chain floors, interleaved frame by frame in a rotating order."""
+    distinct = len(pool)
+    height, width = pool[0].shape[:2]
+    copy_target = np.empty_like(pool[0])
+    for image in pool:
+        minimal_chain(image)
+    per_stage: dict[str, dict[str, list[int]]] = {n: {s.name: [] for s in d.stages} for n, d in built.items()}
+    totals: dict[str, list[int]] = {n: [] for n in built}
+    counts: dict[str, list[int]] = {n: [] for n in built}
+    copies: list[int] = []
+    chains: list[int] = []
+    order = list(built)
+    for name in order:  # warm-up: first calls allocate, learnt backgrounds settle (steady state)
+        for image in pool:
+            built[name].detect(image)
+    for k in range(frames):
+        image = pool[pool_index(distinct + k, distinct)]
+        t0 = time.perf_counter_ns()
+        np.copyto(copy_target, image)
+        copies.append(time.perf_counter_ns() - t0)
+        t0 = time.perf_counter_ns()
+        minimal_chain(image)
+        chains.append(time.perf_counter_ns() - t0)
+        rotated = order[k % len(order):] + order[:k % len(order)]
+        for name in rotated:
+            detections, durations = time_stages(built[name], image)
+            for stage, ns in zip(built[name].stages, durations):
+                per_stage[name][stage.name].append(ns)
+            totals[name].append(sum(durations))
+            counts[name].append(len(detections))
+    floor = float(np.median(copies)) / 1e3
+    chain = float(np.median(chains)) / 1e3
+    seed_median = float(np.median(totals["seed"])) / 1e3 if "seed" in totals else None
+    entry: dict[str, Any] = {"size": f"{width}x{height}", "preset": label_, "copy_floor_us": _stats(copies),
+                             "chain_floor_us": _stats(chains),
+                             "chain_speedup_vs_seed": (seed_median / chain) if seed_median else None,
+                             "detectors": {}, "_samples": {}}
+    for name, d in built.items():
+        total = _stats(totals[name])
+        entry["detectors"][name] = {
+            "stages": {s.name: {"label": s.label, **_stats(per_stage[name][s.name])} for s in d.stages},
+            "total": total,
+            "particles_per_frame": float(np.mean(counts[name])),
+            "fps": 1e6 / total["median_us"] if total["median_us"] else float("inf"),
+            "speedup_vs_seed": (seed_median / total["median_us"]) if seed_median else None,
+            "x_floor": total["median_us"] / floor if floor else None,
+            "x_chain": total["median_us"] / chain if chain else None,
+        }
+        for stage in d.stages:
+            entry["_samples"][f"{name}: {stage.label}"] = np.asarray(per_stage[name][stage.name]) / 1e3
+        entry["_samples"][f"{name}: total"] = np.asarray(totals[name]) / 1e3
+    return entry
 
 
 def bench_modes(*, frames: int = 300, sizes: tuple[tuple[int, int, str], ...] = DEFAULT_SIZES,
@@ -300,7 +343,7 @@ def format_bench(result: BenchResult) -> str:
         floor = entry["copy_floor_us"]["median_us"]
         lines.append("")
         chain = entry["chain_floor_us"]["median_us"]
-        lines.append(f"{entry['size']} ({entry['preset']} scene); memory floor (one frame copy): "
+        lines.append(f"{entry['size']} ({entry['preset']}); memory floor (one frame copy): "
                      f"median {floor:.1f} us; chain floor (minimal_chain: channel, pooling, background, "
                      f"threshold, labels): median {chain:.1f} us"
                      + (f", {entry['chain_speedup_vs_seed']:.2f}x seed's throughput"
@@ -339,12 +382,33 @@ def plot_bench(result: BenchResult, path: str) -> None:
         ax.axvline(entry["chain_floor_us"]["median_us"], color="tab:purple", linestyle=":",
                    label="chain floor (minimal_chain)")
         ax.set_xlabel("microseconds per frame (log)")
-        ax.set_title(f"{entry['size']} ({entry['preset']} scene)")
+        ax.set_title(f"{entry['size']} ({entry['preset']})")
         ax.legend(fontsize=8)
     fig.suptitle(f"antiscatter bench: {result.threads} OpenCV thread(s), {result.frames} frames")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    save_figure(fig, path)
     plt.close(fig)
+
+
+def save_figure(fig: object, path: str | Path) -> None:
+    """Write a matplotlib figure (format from the ending, 100 dpi) whole or not at all: a full disk
+    raises WriteError and leaves no part of it."""
+    import io
+
+    from .writing import write_whole
+
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format=Path(path).suffix[1:].lower() or "png", dpi=100)  # type: ignore[attr-defined]
+    write_whole(path, buffer.getvalue())
+
+
+def plot_suffixes() -> tuple[str, ...]:
+    """The file endings ``--plot`` can write (matplotlib's formats: ``.png``, ``.pdf``, ``.svg``, ...),
+    so a plot path is checked before the work it shows; UsageError without matplotlib."""
+    _pyplot()
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    return tuple(sorted(f".{suffix}" for suffix in FigureCanvasBase.get_supported_filetypes()))
 
 
 def _pyplot():

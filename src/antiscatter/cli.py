@@ -5,18 +5,25 @@ from __future__ import annotations
 import argparse
 import contextlib
 import math
+import os
+import signal
 import sys
 from typing import Any, Sequence
 
 import numpy as np
 
 from . import __version__
-from .errors import UsageError, check_output_path
+from .errors import RunError, Terminated, UsageError, WriteError, check_output_path
 
 __all__ = ["main", "build_parser"]
 
 #: The detector ``evaluate`` runs when none is named.
 DEFAULT_DETECTOR = "contrast"
+#: ``run``'s exit code when the source ended before its declared end (a video cut short): the
+#: frames read were used and every file is complete, but the input was damaged.
+EXIT_DAMAGED = 3
+#: The most OpenCV threads ``bench --threads`` takes: four per CPU; more only measure contention.
+MAX_THREADS = 4 * (os.cpu_count() or 1)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -48,7 +55,10 @@ def build_parser() -> argparse.ArgumentParser:
         "run", help="the backscatter cancellation loop (camera/video/frames/simulator -> projector)",
         description="Detect particles in every frame and show a light pattern with holes where they "
                     "are. Stops at --frames, when the source ends, on 'e' in a window, Ctrl-C or "
-                    "SIGTERM; every file written is complete. Prints the report's per-stage table.",
+                    "SIGTERM; every file written is complete. Prints the report's per-stage table. Exit code 0; "
+                    "2 for bad input; 3 when a video ended before the frames its container declares (cut "
+                    "short or damaged: a warning names it, the frames read were used); 130 / 143 on SIGINT / "
+                    "SIGTERM.",
         epilog="Examples:\n"
                "  antiscatter run --frames 300 --output none --metrics m.csv --detections d.csv\n"
                "  antiscatter run frames/ --output files:patterns.mkv\n"
@@ -56,7 +66,8 @@ def build_parser() -> argparse.ArgumentParser:
                "  antiscatter run camera --output framebuffer:/dev/fb0 --fps 60 --nice -20",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     run.add_argument("source", nargs="?", default=None,
-                     help="sim (default: the built-in simulator), camera (Picamera2), webcam:N, "
+                     help="sim (default: the built-in simulator; sim: where a folder named sim is here, "
+                          "./sim for that folder), camera (Picamera2), webcam:N, "
                           "a folder of frames (<int>.png, or images named in order: png, jpg, tif, bmp), or a video file")
     run.add_argument("--config", metavar="FILE.toml", help="TOML file with [source], [detector], "
                      "[detector.NAME], [pattern], [output], [run] sections; flags override it")
@@ -147,6 +158,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "frames (default: antiscatter-<date>-<time>.mkv)")
     g.add_argument("--metrics", metavar="CSV", help="per-frame stage timings, the report's columns first")
     g.add_argument("--detections", metavar="CSV", help="one row per particle: frame,x,y,radius")
+    g.add_argument("--mcap", metavar="FILE.mcap", help="every frame as ROS 2 messages in an MCAP file (camera "
+                   "image, Detection2DArray with track ids, projector pattern, metrics), stamped with the frame's "
+                   "time, for ros2 bag and Foxglove (pip install 'antiscatter[mcap]')")
     sim = commands.add_parser(
         "simulate", help="synthetic frames with exact ground truth (truth.csv, label masks)",
         description="Write OUT/<frame>.png (from 0) and OUT/truth.csv for a simulator preset; the "
@@ -288,6 +302,46 @@ def build_parser() -> argparse.ArgumentParser:
                      "gain off; default: automatic)")
     rec.add_argument("--camera-gain", type=float, help="analogue gain with a fixed exposure, 1-64 (default 1)")
     rec.add_argument("--web", metavar="[HOST:]PORT", help="serve the control panel (127.0.0.1 unless a host is given)")
+    rec.add_argument("--overwrite", action="store_true", help="replace an existing file (default: refused, a "
+                     "recording is never overwritten)")
+    rec.add_argument("--mcap", metavar="FILE.mcap", help="also every recorded frame as a ROS 2 CompressedImage "
+                     "(PNG) with the recorder's figures, in an MCAP file (pip install 'antiscatter[mcap]')")
+
+    an = commands.add_parser(
+        "analyse", help="survey footage on Dask: particles per frame, second and litre, size spectra, turbidity",
+        description="Run every frame of videos and frame folders through the default detector (single-frame) on "
+                    "a Dask cluster, one task a chunk of frames (videos cut at keyframes), and write per file and "
+                    "over all: Parquet tables (frames, particles, time bins, ESD size spectra), summary.csv and "
+                    "plots. Finished chunks are kept in OUT/chunks/: a stopped run resumes. Exit code 0; 2 for "
+                    "bad input; 3 when an input could not be read (named in the summary and skipped) or was "
+                    "damaged partway; 130 on Ctrl-C.",
+        epilog="Examples:\n"
+               "  antiscatter analyse dives/*.mkv --out survey/\n"
+               "  antiscatter analyse @files.txt frames/ --out survey/ --workers 2 --near-m 0.3 --far-m 1.2\n"
+               "  antiscatter analyse dives/*.mkv --out survey/ --scheduler tcp://10.0.0.5:8786",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    an.add_argument("inputs", nargs="+", metavar="INPUT", help="video files, frame folders, globs (quoted), "
+                    "@list.txt (one of those a line)")
+    an.add_argument("--out", required=True, metavar="DIR", help="folder to write (made if absent)")
+    an.add_argument("--config", metavar="FILE.toml", help="an [analyse] section whose keys are the flags' names "
+                    "with underscores (hfov_deg = 63, near_m = 0.3, ...); flags override it")
+    an.add_argument("--workers", type=int, help="local Dask worker processes (default: one per core)")
+    an.add_argument("--scheduler", metavar="ADDRESS", help="an existing Dask scheduler, e.g. tcp://host:8786 "
+                    "(default: a local cluster)")
+    an.add_argument("--chunk-frames", type=int, help="frames per task, about; chunks start at keyframes (default 300)")
+    an.add_argument("--fps", type=float, help="frame rate of frame folders (default 60; videos: their timestamps)")
+    an.add_argument("--bin-s", type=float, help="time bin, seconds (default 10)")
+    an.add_argument("--hfov-deg", type=float, help="the camera's horizontal field of view, degrees (default 63)")
+    an.add_argument("--vfov-deg", type=float, help="vertical field of view, degrees (default: from hfov and "
+                    "the frame's aspect)")
+    an.add_argument("--near-m", type=float, help="nearest distance counted, m (default 0.3)")
+    an.add_argument("--far-m", type=float, help="farthest distance counted, m (default 1.5)")
+    an.add_argument("--reference-m", type=float, help="distance at which pixels are sized, m (default: the middle "
+                    "of near..far)")
+    an.add_argument("--classes-mm", metavar="LOW:HIGH", help="ESD range of the UVP size classes, mm (default: "
+                    "one pixel to 100 pixels across)")
+    an.add_argument("--no-plots", dest="plots", action="store_false", help="write no PNG figures")
+    an.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
 
     tw = commands.add_parser(
         "twin", help="closed-loop digital twin: backscatter removed and scene light kept, per configuration",
@@ -407,13 +461,19 @@ def build_parser() -> argparse.ArgumentParser:
 
     be = commands.add_parser(
         "bench", help="per-stage latency of every detector, side by side (the report's table 1)",
-        description="Time every detector's stages on the same simulator frames, interleaved, at 800x600 "
-                    "and 1456x1088; report mean, sd, median, p99 and max in microseconds, throughput "
-                    "relative to seed, and the plain frame-copy floor.")
-    be.add_argument("--frames", type=int, default=200, help="frames per size (default 200)")
+        description="Time every detector's stages on the same frames, interleaved: the simulator's at 800x600 "
+                    "and 1456x1088, or any SOURCE run takes; report mean, sd, median, p99 and max in "
+                    "microseconds, throughput relative to seed, and the frame-copy and chain floors.")
+    be.add_argument("source", nargs="?", metavar="SOURCE",
+                    help="time on this source's frames instead of the simulator's: a folder of frames, a video "
+                         "file or sim (its first --distinct frames, played forwards and back)")
+    be.add_argument("--distinct", type=int, default=20, help="different frames in the pool: read from SOURCE, or "
+                    "rendered per size (default 20)")
+    be.add_argument("--frames", type=int, default=200, help="frames timed per size (default 200)")
     be.add_argument("--detectors", help="comma-separated names (default: all)")
-    be.add_argument("--sizes", default="800x600,1456x1088", help="frame sizes (default 800x600,1456x1088)")
-    be.add_argument("--threads", type=int, default=1, help="OpenCV threads (default 1, as one Pi core)")
+    be.add_argument("--sizes", help="simulator frame sizes (default 800x600,1456x1088; not with SOURCE)")
+    be.add_argument("--threads", type=int, default=1, help="OpenCV threads, 1 to four per CPU (default 1, as one "
+                    "Pi core)")
     be.add_argument("--input", choices=("bgr", "y"), default="bgr", help="frames as bgr (video, simulator, "
                     "webcam; default) or y: the luma plane alone, as the Pi camera's YUV420 stream gives it")
     be.add_argument("--modes", action="store_true", help="instead: the simulator through every execution "
@@ -422,6 +482,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "camera: tracking with prediction, dim holes at their own levels), not as for files")
     be.add_argument("--json", action="store_true", help="print the results as JSON")
     be.add_argument("--plot", metavar="FILE.png", help="per-stage box plot")
+
+    from .service import add_service_parser
+    add_service_parser(commands)
     return parser
 
 
@@ -433,6 +496,26 @@ def _size_arg(text: str, flag: str) -> tuple[int, int]:
         return parse_size(text, key=flag)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
+
+
+def _frame_size_arg(text: str, flag: str) -> tuple[int, int]:
+    """``WxH`` of camera frames from a flag, within the frame-size limits every command shares
+    (:func:`~antiscatter.detection.check_frame_size`), or a one-line UsageError naming the flag."""
+    from .detection import check_frame_size
+
+    size = _size_arg(text, flag)
+    check_frame_size(*size, what=f"{flag}: frames", error=UsageError)
+    return size
+
+
+def _projector_size_arg(text: str, flag: str = "--projector-size") -> tuple[int, int]:
+    """``WxH`` of the projector from a flag, each side within ``MAX_PROJECTOR_SIDE`` as ``run`` allows."""
+    from .config import MAX_PROJECTOR_SIDE
+
+    size = _size_arg(text, flag)
+    if max(size) > MAX_PROJECTOR_SIDE:
+        raise UsageError(f"{flag} {text}: too large, allowed each side 1..{MAX_PROJECTOR_SIDE}")
+    return size
 
 
 def _detector_from(args: argparse.Namespace):
@@ -470,9 +553,11 @@ def _evaluate(args: argparse.Namespace) -> int:
         raise UsageError(f"--fps {args.fps}: allowed a positive number")
     if args.frames is not None and args.frames <= 0:
         raise UsageError(f"--frames {args.frames}: allowed a positive number")
-    for flag, value in (("--csv", args.csv), ("--plot", args.plot)):
-        if value:
-            check_output_path(value, flag)
+    if args.csv:
+        check_output_path(args.csv, "--csv")
+    if args.plot:
+        from .bench import plot_suffixes
+        check_output_path(args.plot, "--plot", suffixes=plot_suffixes())
     if not (math.isfinite(args.rise) and args.rise >= 0):
         raise UsageError(f"--rise {args.rise}: allowed a number of grey levels >= 0")
     if args.min_area < 1:
@@ -498,6 +583,7 @@ def _evaluate(args: argparse.Namespace) -> int:
             raise UsageError(f"--twin-long-frames {args.twin_long_frames}: allowed >= 0 (0 leaves the table out)")
         if args.twin_long_seeds < 1:
             raise UsageError(f"--twin-long-seeds {args.twin_long_seeds}: allowed >= 1")
+        report = check_output_path(args.report, "--report")  # before the long work; no folder is made
         bench_results = None
         if args.bench_frames:  # BGR frames (files, the simulator, webcams) and the Pi camera's Y plane
             from .bench import bench
@@ -509,9 +595,9 @@ def _evaluate(args: argparse.Namespace) -> int:
                                     twin_long_frames=args.twin_long_frames, twin_long_seeds=args.twin_long_seeds,
                                     heldout=args.heldout_frames != 0, heldout_frames=args.heldout_frames or None,
                                     heldout_data=data_dir)
-        report = Path(args.report)
-        report.parent.mkdir(parents=True, exist_ok=True)
-        report.write_text(markdown)
+        from .writing import write_whole
+
+        write_whole(report, markdown.encode())
         print(json.dumps(data, indent=2) if args.json else markdown)
         print(f"wrote {report}", file=sys.stderr)
         return 0
@@ -672,23 +758,28 @@ def _bench(args: argparse.Namespace) -> int:
     import json
 
     from .bench import bench, format_bench, plot_bench
-    from .detection import DETECTORS, check_frame_size, detector_entry
+    from .detection import DETECTORS, detector_entry
 
     if args.frames <= 0:
         raise UsageError(f"--frames {args.frames}: allowed a positive number")
-    if args.threads < 1:
-        raise UsageError(f"--threads {args.threads}: allowed >= 1")
+    if not 1 <= args.threads <= MAX_THREADS:
+        raise UsageError(f"--threads {args.threads}: allowed 1..{MAX_THREADS} ({MAX_THREADS // 4} CPUs here, "
+                         "four threads each)")
     if args.vehicle and not args.modes:
         raise UsageError("--vehicle: goes with --modes (the per-stage bench times the detectors alone)")
+    if not 2 <= args.distinct <= 1000:
+        raise UsageError(f"--distinct {args.distinct}: allowed 2..1000 frames")
+    if args.source is not None and (args.sizes or args.modes):
+        raise UsageError(f"SOURCE {args.source}: goes without --sizes and --modes (its frames have their own size)")
     if args.plot:
-        check_output_path(args.plot, "--plot")
+        from .bench import plot_suffixes
+        check_output_path(args.plot, "--plot", suffixes=plot_suffixes())
     names = [n.strip() for n in args.detectors.split(",")] if args.detectors else list(DETECTORS)
     for n in names:
         detector_entry(n)
     sizes = []
-    for text in args.sizes.split(","):
-        w, h = _size_arg(text.strip(), "--sizes")
-        check_frame_size(w, h, what="--sizes: frames", error=UsageError)
+    for text in (args.sizes or "800x600,1456x1088").split(","):
+        w, h = _frame_size_arg(text.strip(), "--sizes")
         sizes.append((w, h, "fullres" if w * h > 800 * 600 else "mixed"))
     if args.modes:
         from .bench import bench_modes, format_modes, machine_description
@@ -699,7 +790,7 @@ def _bench(args: argparse.Namespace) -> int:
               else format_modes(modes))
         return 0
     result = bench(detectors=names, frames=args.frames, threads=args.threads, sizes=tuple(sizes),
-                   input=args.input)
+                   input=args.input, source=args.source, distinct=args.distinct)
     if args.plot:
         plot_bench(result, args.plot)
     print(json.dumps(result.as_dict(), indent=2) if args.json else format_bench(result))
@@ -710,20 +801,26 @@ def _calibrate(args: argparse.Namespace) -> int:
     import math
 
     from .calibration import TwinRig, calibrate_planes, mapping_error_px
-    from .config import parse_size
     from .twin import TwinGeometry
 
     try:
         depths = [float(d) for d in args.depths.split(",")]
-        size = parse_size(args.size, key="--size")
-        projector = parse_size(args.projector_size, key="--projector-size")
-    except ValueError as exc:
-        raise UsageError(f"calibrate: {exc}" if "size" in str(exc) else
-                         f"--depths {args.depths!r}: expected distances in metres, e.g. 0.5,2.0") from None
-    if not depths or min(depths) <= 0 or len(set(depths)) != len(depths):
+    except ValueError:
+        raise UsageError(f"--depths {args.depths!r}: expected distances in metres, e.g. 0.5,2.0") from None
+    size = _frame_size_arg(args.size, "--size")
+    projector = _projector_size_arg(args.projector_size)
+    if not depths or not all(math.isfinite(d) and d > 0 for d in depths) or len(set(depths)) != len(depths):
         raise UsageError(f"--depths {args.depths!r}: allowed distinct positive distances in metres")
     if args.step < 1:
         raise UsageError(f"--step {args.step}: allowed >= 1")
+    try:  # the twin's own checks of the field of view and the baseline, for hardware too
+        TwinGeometry(camera_size=size, projector_size=projector, baseline_m=args.baseline_m, hfov_deg=args.hfov_deg)
+    except ValueError as exc:
+        key, _, why = str(exc).partition(":")
+        raise UsageError(f"--{key.replace('_', '-')}:{why}") from None
+    if not args.twin and not sys.stdin.isatty():
+        raise UsageError("asks for each target placement and waits for Enter: needs an interactive terminal on "
+                         "stdin (--twin calibrates the digital twin without one)")
     check_output_path(args.out, "calibrate")
     focal = (size[0] / 2) / math.tan(math.radians(args.hfov_deg) / 2)
     if args.board:
@@ -849,7 +946,8 @@ def _twin(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.latency_ms) and args.latency_ms >= 0):
         raise UsageError(f"--latency-ms {args.latency_ms}: allowed a number >= 0")
     if args.plot:
-        check_output_path(args.plot, "--plot")
+        from .bench import plot_suffixes
+        check_output_path(args.plot, "--plot", suffixes=plot_suffixes())
     for key in ("flash_level", "dim_level"):
         if not 0 <= getattr(args, key) <= 1:
             raise UsageError(f"--{key.replace('_', '-')} {getattr(args, key)}: allowed 0..1")
@@ -864,7 +962,7 @@ def _twin(args: argparse.Namespace) -> int:
     try:
         size = parse_size(args.size, key="--size")
         check_frame_size(*size, what="--size: camera frames")
-        projector = parse_size(args.projector_size, key="--projector-size")
+        projector = _projector_size_arg(args.projector_size)
         exposure = (args.exposure_ms / 1e3 if args.exposure_ms is not None
                     else min(0.004, 1.0 / args.projector_hz) if args.projector_hz > 0 else 0.004)
         geometry = TwinGeometry(camera_size=size, projector_size=projector, baseline_m=args.baseline_m,
@@ -945,13 +1043,59 @@ def _record(args: argparse.Namespace) -> int:
                             seconds=args.seconds, frames=args.frames, light=args.light == "on",
                             paused=args.paused, outputs=tuple(args.output or ("none",)),
                             buffer_mb=args.buffer_mb, overflow=args.overflow, web=args.web or "",
-                            colour=args.camera_colour, exposure_ms=args.camera_exposure_ms, gain=args.camera_gain)
+                            colour=args.camera_colour, exposure_ms=args.camera_exposure_ms, gain=args.camera_gain,
+                            overwrite=args.overwrite, mcap=Path(args.mcap) if args.mcap else None)
     summary = record(request)
     if summary["reason"].startswith("stopped by SIGINT"):
         return 130
     if summary["reason"].startswith("stopped by SIGTERM"):
         return 143
     return 0
+
+
+def _analyse(args: argparse.Namespace) -> int:
+    """``analyse``: flags over an ``[analyse]`` section of --config; exit code 0, or 3 when an input was skipped."""
+    import tomllib
+    from dataclasses import fields
+    from pathlib import Path
+
+    from .analyse.command import AnalyseRequest, analyse
+    from .analyse.volume import VolumeModel
+
+    settings: dict[str, Any] = {}
+    if args.config:
+        try:
+            with open(args.config, "rb") as handle:
+                section = tomllib.load(handle).get("analyse", {})
+        except FileNotFoundError:
+            raise UsageError(f"--config {args.config}: no such file") from None
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError, IsADirectoryError) as exc:
+            raise UsageError(f"--config {args.config}: not a TOML file ({str(exc).splitlines()[0]})") from None
+        settings.update(section)
+    for name in ("workers", "scheduler", "chunk_frames", "fps", "bin_s", "hfov_deg", "vfov_deg", "near_m", "far_m",
+                 "reference_m", "classes_mm"):
+        if getattr(args, name) is not None:
+            settings[name] = getattr(args, name)
+    volume_keys = {f.name for f in fields(VolumeModel)}
+    request_keys = {f.name for f in fields(AnalyseRequest)} - {"inputs", "out", "volume", "progress", "plots"}
+    unknown = sorted(set(settings) - volume_keys - request_keys)
+    if unknown:
+        raise UsageError(f"[analyse] {unknown[0]}: unknown key; allowed: {', '.join(sorted(volume_keys | request_keys))}")
+    if isinstance(settings.get("classes_mm"), list):  # classes_mm = [0.5, 50] in the TOML file
+        settings["classes_mm"] = tuple(settings["classes_mm"])
+    if isinstance(settings.get("classes_mm"), str):
+        try:
+            low, high = (float(v) for v in settings["classes_mm"].split(":"))
+        except ValueError:
+            raise UsageError(f"--classes-mm {settings['classes_mm']}: expected LOW:HIGH in mm, e.g. 0.5:50") from None
+        settings["classes_mm"] = (low, high)
+    try:
+        volume = VolumeModel(**{k: v for k, v in settings.items() if k in volume_keys})
+        request = AnalyseRequest(inputs=tuple(args.inputs), out=Path(args.out), volume=volume, progress=args.progress,
+                                 plots=args.plots, **{k: v for k, v in settings.items() if k in request_keys})
+    except (ValueError, TypeError) as exc:
+        raise UsageError(str(exc)) from None
+    return analyse(request)["exit_code"]
 
 
 def _simulate(args: argparse.Namespace) -> int:
@@ -984,11 +1128,17 @@ def _simulate(args: argparse.Namespace) -> int:
     frames = args.frames if args.frames is not None else frames
     seed = args.seed if args.seed is not None else seed
     if args.size:
-        size = _size_arg(args.size, "--size")
+        size = _frame_size_arg(args.size, "--size")
     request = SimulationRequest(out=Path(args.out), preset=preset, frames=frames, seed=seed, size=size,
                                 background=args.background, masks=args.masks,
                                 video=Path(args.video) if args.video else None, overwrite=args.overwrite)
-    result = simulate(request)
+    try:
+        result = simulate(request)
+    except (OSError, WriteError) as exc:  # a full disk: one line; the staging folder is gone
+        from .writing import write_failed
+
+        failed = exc if isinstance(exc, OSError) else OSError(0, exc.reason)
+        raise write_failed(args.out, failed, "nothing written (the partial output removed)") from None
     where = args.video if args.video else f"{args.out}/<frame>.png"
     print(f"wrote {result['frames']} frames of preset {preset} (seed {seed}) to {where}, "
           f"{result['particles']} truth rows to {args.out}/truth.csv"
@@ -1016,7 +1166,8 @@ def _run_config(args: argparse.Namespace):
         "run": {"frames": args.frames, "fps": args.fps, "nice": args.nice,
                 "metrics": args.metrics, "detections": args.detections, "mode": args.mode,
                 "rt_priority": args.rt_priority, "cpus": args.cpus, "mlock": args.mlock,
-                "web": args.web, "record_to": args.record_to},
+                "web": args.web, "record_to": args.record_to,
+                "mcap": args.mcap},
     }
     if args.projector_size:
         w, h = _size_arg(args.projector_size, "--projector-size")
@@ -1040,6 +1191,8 @@ def _run_config(args: argparse.Namespace):
 
 
 def _read_mapping(path: str) -> list[list[float]]:
+    import warnings
+
     import numpy as np
     from pathlib import Path
 
@@ -1047,8 +1200,10 @@ def _read_mapping(path: str) -> list[list[float]]:
     if not file.is_file():
         raise UsageError(f"--mapping {path}: no such file")
     try:
-        matrix = np.loadtxt(file, dtype=np.float64, ndmin=2)
-    except ValueError:
+        with warnings.catch_warnings():  # numpy's warning of an empty file would come before our one line
+            warnings.simplefilter("ignore")
+            matrix = np.loadtxt(file, dtype=np.float64, ndmin=2)
+    except (ValueError, UnicodeDecodeError):
         raise UsageError(f"--mapping {path}: not a text file of numbers; expected 3 rows of 3 numbers") from None
     if matrix.shape != (3, 3):
         raise UsageError(f"--mapping {path}: got a {matrix.shape[0]}x{matrix.shape[1]} matrix, expected 3x3")
@@ -1131,7 +1286,43 @@ def format_lock_check(result: dict) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the console script; returns the exit code."""
+    """Entry point of the console script; returns the exit code.
+
+    SIGTERM unwinds every command as Ctrl-C does (files finished, staging removed; exit code 143)
+    until a command installs its own stop (run and record stop at the next frame).
+    """
+    try:
+        previous = signal.signal(signal.SIGTERM, _terminate)
+    except ValueError:  # not the main thread: the caller's handlers stay
+        previous = None
+    try:
+        return _main(argv)
+    except BaseException as exc:  # (before a command began, or in a library's import it re-raised as another)
+        if not _caused_by_sigterm(exc):
+            raise
+        print("antiscatter: stopped by SIGTERM", file=sys.stderr)
+        return 143
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise Terminated
+
+
+def _caused_by_sigterm(exc: BaseException | None) -> bool:
+    """Whether ``exc`` is :class:`Terminated` or was raised from it (a library import that wraps
+    whatever interrupted it, e.g. in an ImportError)."""
+    seen = 0
+    while exc is not None and seen < 32:
+        if isinstance(exc, Terminated):
+            return True
+        exc, seen = exc.__cause__ or exc.__context__, seen + 1
+    return False
+
+
+def _main(argv: Sequence[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:
@@ -1145,13 +1336,15 @@ def main(argv: Sequence[str] | None = None) -> int:
                 return 130
             if summary.stop_reason == "stopped by SIGTERM":
                 return 143
-            return 0
+            return EXIT_DAMAGED if summary.damaged else 0
         if args.command == "simulate":
             return _simulate(args)
         if args.command == "evaluate":
             return _evaluate(args)
         if args.command == "bench":
             return _bench(args)
+        if args.command == "analyse":
+            return _analyse(args)
         if args.command == "record":
             return _record(args)
         if args.command == "twin":
@@ -1162,9 +1355,18 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _display_lag(args)
         if args.command == "lock-check":
             return _lock_check(args)
+        if args.command == "service":
+            from .service import service_main
+            return service_main(args)
     except UsageError as exc:
         print(f"antiscatter {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except RunError as exc:  # failed partway (a dead detector process): files complete up to it
+        print(f"antiscatter {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+    except Terminated:
+        print(f"antiscatter {args.command}: stopped by SIGTERM", file=sys.stderr)
+        return 143
     except KeyboardInterrupt:
         print(f"antiscatter {args.command}: interrupted", file=sys.stderr)
         return 130

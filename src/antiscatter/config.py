@@ -10,6 +10,7 @@ and bad values are rejected naming the key, the value and what is allowed.
 from __future__ import annotations
 
 import math
+import os
 import tomllib
 import types
 import typing
@@ -77,6 +78,8 @@ class SourceConfig:
     camera_lock: bool = False
 
     def __post_init__(self) -> None:
+        if not self.spec.strip():
+            raise ValueError(f"spec: got {self.spec!r}, allowed sim, camera, webcam:N, a folder or a video file")
         if self.size:
             parse_size(self.size)
         if not self.camera_fps > 0:
@@ -114,7 +117,7 @@ class PatternConfig:
     """The projector image.
 
     width, height: projector resolution in pixels (Optoma ML550: 1280x800).
-    margin: pixels added to every hole's radius.
+    margin: projector pixels added to every hole's radius, 0 up to the projector's longer side.
     grow, grow_from: each hole's radius beyond ``grow_from`` camera pixels (for frames 800 px
         wide, in proportion for others) grows by ``grow`` times the excess
         (:func:`~antiscatter.pattern.grow_holes`); default 0.6 from 4 px; grow 0 = off.
@@ -153,6 +156,9 @@ class PatternConfig:
             value = getattr(self, name)
             if not math.isfinite(value) or value < 0:
                 raise ValueError(f"{name}: got {value}, allowed a number >= 0")
+        if self.margin > max(self.width, self.height):  # a wider hole darkens the whole projector
+            raise ValueError(f"margin: got {self.margin:g}, allowed 0..{max(self.width, self.height)} px "
+                             "(the projector's longer side)")
         if self.mapping:
             matrix = _as_matrix(self.mapping)
             object.__setattr__(self, "mapping", tuple(tuple(row) for row in matrix.tolist()))
@@ -423,6 +429,8 @@ class RunConfig:
     web: serve the control panel on ``[HOST:]PORT`` (host 127.0.0.1 unless given); empty = none.
     record_to: the .mkv the panel's Record button writes the input frames to (default: a
         timestamped file in the current folder).
+    mcap: path of an MCAP file of ROS 2 messages (frames, detections, pattern, metrics per frame;
+        :mod:`antiscatter.mcap_out`), empty for none.
     """
 
     frames: int = 0
@@ -436,6 +444,7 @@ class RunConfig:
     mlock: bool = False
     web: str = ""
     record_to: str = ""
+    mcap: str = ""
 
     def __post_init__(self) -> None:
         if self.mode not in ("single", "threads", "processes", "processes-pickle"):
@@ -449,6 +458,10 @@ class RunConfig:
                 cpus = [-1]
             if not cpus or min(cpus) < 0:
                 raise ValueError(f"cpus: got {self.cpus!r}, allowed CPU numbers separated by commas, e.g. 2,3")
+            count = os.cpu_count() or 1
+            if max(cpus) >= count:
+                raise ValueError(f"cpus: got {self.cpus!r}, allowed CPU numbers 0..{count - 1} (this machine has "
+                                 f"{count})")
         if self.frames < 0:
             raise ValueError(f"frames: got {self.frames}, allowed >= 0 (0 = no limit)")
         if not math.isfinite(self.fps) or self.fps < 0:
@@ -559,6 +572,8 @@ def load_config(path: str | Path | None = None, overrides: dict[str, dict[str, A
             raise UsageError(f"{path}: is a folder, expected a TOML config file") from None
         except tomllib.TOMLDecodeError as exc:
             raise UsageError(f"{path}: not valid TOML ({exc})") from None
+        except UnicodeDecodeError as exc:
+            raise UsageError(f"{path}: not UTF-8 text (byte {exc.start}); allowed a UTF-8 TOML config file") from None
     for key, value in data.items():
         if key not in _SECTIONS:
             raise UsageError(f"{where}: unknown section [{key}]; allowed: {', '.join(_SECTIONS)}")
@@ -569,11 +584,11 @@ def load_config(path: str | Path | None = None, overrides: dict[str, dict[str, A
     nested = {k: raw_detector.pop(k) for k in list(raw_detector) if isinstance(raw_detector[k], dict)}
     for name, cls in _SECTIONS.items():
         section = dict(raw_detector if name == "detector" else data.get(name, {}))
-        for key, value in (overrides or {}).get(name, {}).items():
-            if value is not None:
-                section[key] = value
+        flags = {k: v for k, v in (overrides or {}).get(name, {}).items() if v is not None}
         try:
-            sections[name] = build_section(cls, section, prefix=name)
+            sections[name] = build_section(cls, {**section, **flags}, prefix=name)
+            if path is not None and section and flags:  # the file's own values, as if no flag overrode them
+                build_section(cls, {**flags, **section}, prefix=name)
         except UsageError as exc:
             raise UsageError(f"{where}: {exc}" if path is not None else str(exc)) from None
     detector_name = sections["detector"].name
@@ -583,6 +598,12 @@ def load_config(path: str | Path | None = None, overrides: dict[str, dict[str, A
             raise UsageError(f"{where}: unknown section [detector.{other}]; allowed: "
                              + ", ".join(f"detector.{n}" for n in sorted(DETECTORS)))
     params_data = dict(nested.get(detector_name, {}))
+    if params_data and detector_overrides:  # the file's own values, as if no --param overrode them
+        try:
+            build_section(DETECTORS[detector_name].params, {**detector_overrides, **params_data},
+                          prefix=f"detector.{detector_name}")
+        except UsageError as exc:
+            raise UsageError(f"{where}: {exc}") from None
     params_data.update(detector_overrides or {})
     try:
         params = build_section(DETECTORS[detector_name].params, params_data,

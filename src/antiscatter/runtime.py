@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import array
 import collections
-import csv
 import math
 import os
 import signal
@@ -28,8 +27,9 @@ from .config import Config, light_ahead_reaches, parse_size
 from .detection import Detector, check_frame_size, make_detector
 from .detections import Detections
 from .errors import UsageError, check_output_path
+from .writing import CsvFile
 from .levels import HoleLevels
-from .outputs import LightOutput, open_output
+from .outputs import LightOutput, check_output, open_output
 from .pattern import camera_light, grow_holes, render_pattern, scale_mapping
 from .probe import Intervals
 from .sources import FrameSource, open_source, parse_crop
@@ -197,8 +197,11 @@ class RunSummary:
     dropped: int = 0
     period_ns: int = 0
     notes: list = field(default_factory=list)  # what the run found worth saying at its end
+    # the panel's recordings in the order started: {"path", "frames"} or {"path", "error"}
+    recordings: list = field(default_factory=list)
     cut: int = 0  # candidates the detector's work bound left out, over the run
     cut_frames: int = 0  # frames where it left any out
+    damaged: str = ""  # the source ended before its declared end (a file cut short): the warning, else ""
     # per-frame times as compact int64 arrays (8 bytes a frame), for percentiles and pacing
     output_times: array.array = field(default_factory=lambda: array.array("q"))
     latencies_ns: array.array = field(default_factory=lambda: array.array("q"))
@@ -255,19 +258,12 @@ class StopFlag:
             signal.signal(signum, handler)  # type: ignore[arg-type]
 
 
-def _open_csv(path: str, header: list[str]) -> tuple[TextIO, "csv._writer"]:
-    target = Path(path)
-    if target.is_dir():
-        raise UsageError(f"{target}: is a folder, expected a CSV file path")
+def _open_csv(path: str, header: list[str]) -> CsvFile:
+    """A CSV written whole rows at a time (a full disk leaves it whole); its path was checked before any work."""
     try:
-        handle = target.open("w", newline="")
-    except FileNotFoundError:
-        raise UsageError(f"{target}: the folder {target.parent} does not exist") from None
-    except PermissionError:
-        raise UsageError(f"{target}: permission denied") from None
-    writer = csv.writer(handle)
-    writer.writerow(header)
-    return handle, writer
+        return CsvFile(path, header)
+    except OSError as exc:
+        raise UsageError(f"{path}: cannot be written ({exc.strerror or exc})") from None
 
 
 def _open_source(config: Config) -> FrameSource:
@@ -428,10 +424,14 @@ class _Pipeline:
         self.row = [0.0] * len(columns)
         self.clock = time.perf_counter_ns
         self.panel: Any = None
+        self.mcap: Any = None  # the MCAP log (--mcap) and its FrameClock, set by run
+        self.mcap_clock: Any = None
         self.light_on = True
         self.record_wanted = False
+        self.record_path: Path | None = None  # a recording claimed by the panel, for the loop to start
         self.recorder: Any = None
-        self.recorded: list[dict[str, float]] = []
+        self.recording: dict[str, Any] = {}  # the summary's entry of the recording under way
+        self.log: TextIO = sys.stderr  # where a failed recording is reported at once
         self._closers: list[threading.Thread] = []
         self._dark: np.ndarray | None = None
 
@@ -746,35 +746,82 @@ class _Pipeline:
                     (frame.index, f"{x:.3f}", f"{y:.3f}", f"{r:.3f}", i)
                     for (x, y), r, i in zip(detections.centres.tolist(), detections.radii.tolist(),
                                             rec.track_ids.tolist()))
+        if self.mcap is not None:  # the frame's ROS 2 messages (off the latency path: the pattern is out)
+            self.mcap.write(self.mcap_clock.stamp_ns(frame), image=frame.image, detections=detections,
+                            track_ids=rec.track_ids, pattern=shown,
+                            metrics={**values, "Frame": frame.index, "Particles": len(detections),
+                                     "Dropped Frames": dropped, "Candidates Cut": detections.cut})
         if self.panel is not None:
             self._publish(rec, latency_ns, dropped)
         return any(o.exit_requested for o in self.outputs)
 
     def _record(self, image: np.ndarray) -> None:
-        """Start, feed or stop the panel's recording of the input frames."""
-        if self.record_wanted and self.recorder is None:
-            from .record import Recorder
+        """Start, feed or stop the panel's recording of the input frames.
 
-            path = self.config.run.record_to or time.strftime("antiscatter-%Y%m%d-%H%M%S.mkv")
-            fps = self.config.run.fps or 30.0
-            self.recorder = Recorder(path, fps=fps)
-        elif not self.record_wanted and self.recorder is not None:
+        A recording that fails (its file cannot be opened or written) stops with a message in the
+        log and the summary; the run and its light go on.
+        """
+        if self.recorder is not None and (not self.record_wanted or self.record_path is not None):
             self.stop_recording()
+        if self.record_wanted and self.record_path is not None:
+            path, self.record_path = self.record_path, None
+            entry = {"path": str(path)}
+            self.summary.recordings.append(entry)
+            try:
+                from .record import Recorder
+
+                self.recorder = Recorder(path, fps=self.config.run.fps or 30.0)
+            except Exception as exc:  # noqa: BLE001 - no recording may stop the light
+                self.record_wanted = False
+                self._recording_failed(entry, exc)
+                return
+            self.recording = entry
         if self.recorder is not None:
-            self.recorder.write(image)
+            try:
+                self.recorder.write(image)
+            except Exception as exc:  # noqa: BLE001 - no recording may stop the light
+                self.record_wanted = False
+                self._recording_failed(self.recording, exc)
+                self.stop_recording()
+
+    def _recording_state(self) -> str:
+        """The panel's figure: the file being recorded, ``no``, or why the last recording failed."""
+        if self.recorder is not None:
+            return str(self.recorder.path)
+        last = self.summary.recordings[-1] if self.summary.recordings else {}
+        return f"failed: {last['path']}: {last['error']}" if "error" in last else "no"
+
+    def _recording_failed(self, entry: dict[str, Any], exc: BaseException) -> None:
+        """Note a failed recording in its summary entry and the log (once)."""
+        if "error" in entry:
+            return
+        entry["error"] = str(exc) or type(exc).__name__
+        print(f"panel recording {entry['path']} failed: {entry['error']}; the run goes on", file=self.log)
 
     def stop_recording(self, *, wait: bool = False) -> None:
         """Finish the recording in the background (the loop must not wait for the encoder)."""
         if self.recorder is not None:
             recorder, self.recorder = self.recorder, None
-            closer = threading.Thread(target=lambda: self.recorded.append({"path": str(recorder.path),
-                                                                         **recorder.close()}),
-                                      name="antiscatter-recorder-close")
+            entry, self.recording = self.recording, {}
+
+            def close() -> None:
+                try:
+                    figures = recorder.close()
+                except Exception as exc:  # noqa: BLE001 - reported, the run goes on
+                    self._recording_failed(entry, exc)
+                    return
+                entry.update(figures)
+
+            closer = threading.Thread(target=close, name="antiscatter-recorder-close")
             closer.start()
             self._closers.append(closer)
         if wait:
             for closer in self._closers:
                 closer.join()
+            if self.record_path is not None:  # claimed by the panel, never started: leave no empty file
+                path, self.record_path = self.record_path, None
+                if path.is_file() and path.stat().st_size == 0:
+                    path.unlink()
 
     def _publish(self, rec: _Record, latency_ns: int, dropped: int) -> None:
         summary = self.summary
@@ -787,7 +834,7 @@ class _Pipeline:
             stats = {"frames": summary.frames, "fps": fps, "latency_p50_ms": float(np.median(recent)),
                      "latency_p99_ms": float(np.percentile(recent, 99)), "particles": len(rec.detections),
                      "dropped": summary.dropped, "light": "on" if self.light_on else "off",
-                     "recording": str(self.recorder.path) if self.recorder is not None else "no"}
+                     "recording": self._recording_state()}
         self.panel.publish(image=rec.frame.image, detections=rec.detections, pattern=rec.pattern,
                            stats=stats, sample=sample)
 
@@ -799,15 +846,27 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
     ``config.run.mode`` picks the execution: ``single`` (one thread, the
     report's design) or ``threads`` (capture, processing and output overlap in
     three threads joined by latest-frame slots).  Every file is complete and
-    valid however the run ends.  Returns the summary (also printed to ``out``);
+    valid however the run ends; a write the disk refuses stops the run with
+    WriteError (one line), each file whole up to its last row or frame.  Returns the summary (also printed to ``out``);
     bad input raises UsageError.  ``source`` replaces the configured source (benchmarks, tests).
     """
     log = log or sys.stderr
     out = out or sys.stdout
     detector = make_detector(config.detector.name, config.detector_params)
     rc = config.run
+    # every file this run writes, before any work: one line and nothing written when one cannot be
+    for flag, value in (("run.metrics (--metrics)", rc.metrics), ("run.detections (--detections)", rc.detections)):
+        if value:
+            check_output_path(value, flag)
+    for spec in config.output.outputs:
+        check_output(spec)
     if rc.record_to:  # the panel's Record button would fail mid-run
         check_output_path(rc.record_to, "run.record_to (--record-to)")
+    if rc.mcap:
+        from .mcap_out import require_mcap
+
+        require_mcap()
+        check_output_path(rc.mcap, "run.mcap (--mcap)", suffixes=(".mcap",))
     for note in apply_process_controls(rc):
         print(note, file=log)
 
@@ -834,6 +893,12 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
     summary.period_ns = int(round(1e9 / rc.fps)) if rc.fps else 0
 
     with ExitStack() as stack:
+        stop = stack.enter_context(StopFlag())  # first: a signal from here on stops the run with its files whole
+        panel = None
+        if rc.web:  # its port first: a bad or busy one fails before the source opens or a file is touched
+            from .web import ControlPanel
+
+            panel = stack.enter_context(ControlPanel(rc.web, title="run", start=False))
         source = stack.enter_context(source if source is not None else _open_source(config))
         check_frame_size(*source.size, what=f"source {config.source.spec}: frames", error=UsageError)
         calibration = None
@@ -848,12 +913,10 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
         names = ", ".join(o.name for o in outputs)
         metrics_writer = detections_writer = None
         if rc.metrics:
-            handle, metrics_writer = _open_csv(rc.metrics, columns)
-            stack.callback(handle.close)
+            metrics_writer = stack.enter_context(_open_csv(rc.metrics, columns))
         if rc.detections:
             header = ["frame", "x", "y", "radius"] + (["track_id"] if tracker is not None else [])
-            handle, detections_writer = _open_csv(rc.detections, header)
-            stack.callback(handle.close)
+            detections_writer = stack.enter_context(_open_csv(rc.detections, header))
         tracking = ("" if tracker is None else
                     ", tracking" + (" with prediction" if tc.predict else "")
                     + (f" over {tc.latency_ms:g} ms" if tc.predict and tc.latency_ms >= 0 else ""))
@@ -869,10 +932,15 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
                   "0.940); --camera-lock times the exposures to the projector", file=log)
         pipeline = _Pipeline(config, detector, tracker, source, calibration, outputs, metrics_writer,
                              detections_writer, columns, summary, buffers=1 if rc.mode == "single" else 3)
+        if rc.mcap:
+            from .mcap_out import FrameClock, McapLog
+
+            pipeline.mcap = stack.enter_context(McapLog(rc.mcap))
+            pipeline.mcap_clock = FrameClock(live=pipeline.frame_interval is None,
+                                             interval_s=pipeline.frame_interval or 0.0)
         stack.callback(pipeline.stop_recording, wait=True)  # a recording is finished however the run ends
-        stop = stack.enter_context(StopFlag())
-        if rc.web:
-            pipeline.panel = stack.enter_context(_open_panel(rc.web, pipeline, stop, log))
+        if panel is not None:
+            pipeline.panel = _serve_panel(panel, pipeline, stop, log)
         started = time.perf_counter_ns()
         if rc.mode == "threads":
             _run_threads(pipeline, source, stop, rc)
@@ -884,29 +952,60 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
         else:
             _run_single(pipeline, source, stop, rc)
         summary.wall_s = (time.perf_counter_ns() - started) / 1e9
+        summary.damaged = source.damaged
     _print_summary(summary, out)
+    if summary.damaged:
+        print(f"warning: {summary.damaged}", file=log)
     return summary
 
 
-def _open_panel(address: str, pipeline: _Pipeline, stop: "StopFlag", log: TextIO) -> Any:
-    """The web panel with the report's three keys as buttons (flags the loop reads)."""
-    from .web import ControlPanel
+def _serve_panel(panel: Any, pipeline: _Pipeline, stop: "StopFlag", log: TextIO) -> Any:
+    """Give the bound web panel the report's three keys as buttons (flags the loop reads) and serve it."""
 
     def light() -> str:
         pipeline.light_on = not pipeline.light_on
         return f"light {'on' if pipeline.light_on else 'off'}"
 
     def record() -> str:
-        pipeline.record_wanted = not pipeline.record_wanted
-        return "recording" if pipeline.record_wanted else "recording stopped"
+        if pipeline.record_wanted:
+            pipeline.record_wanted = False
+            return "recording stopped"
+        base = Path(pipeline.config.run.record_to or time.strftime("antiscatter-%Y%m%d-%H%M%S.mkv"))
+        try:
+            pipeline.record_path = claim_recording_path(base)
+        except OSError as exc:
+            message = f"cannot record to {base}: {exc.strerror or exc}"
+            pipeline.summary.recordings.append({"path": str(base), "error": exc.strerror or str(exc)})
+            print(f"panel recording {base} failed: {exc.strerror or exc}; the run goes on", file=log)
+            return message
+        pipeline.record_wanted = True
+        return "recording"
 
     def finish() -> str:
         stop.reason = stop.reason or "panel"
         return "stopping"
 
-    panel = ControlPanel(address, title="run", actions={"light": light, "record": record, "stop": finish})
+    pipeline.log = log
+    panel.actions.update(light=light, record=record, stop=finish)
+    panel.start()
     print(f"control panel: {panel.url}", file=log)
     return panel
+
+
+def claim_recording_path(base: Path, *, limit: int = 10000) -> Path:
+    """The first of ``base``, ``base-2``, ``base-3``, ... (same suffix) that does not exist, created empty.
+
+    Created exclusively (``O_EXCL``), so no recording ever overwrites a file, and its folder's
+    writability is known before the loop starts it.  OSError when it cannot be created.
+    """
+    for n in range(1, limit + 1):
+        path = base if n == 1 else base.with_name(f"{base.stem}-{n}{base.suffix}")
+        try:
+            os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644))
+        except FileExistsError:
+            continue
+        return path
+    raise FileExistsError(17, f"{base} and its {limit - 1} numbered variants exist", str(base))
 
 
 def _timed_read(source: FrameSource) -> tuple[Any, int, int]:
@@ -1224,7 +1323,12 @@ def _run_threads(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc:
 
 def _run_processes(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", rc: Any, config: Config,
                    *, transport: str) -> None:
-    """Detection in a worker process fed through shared memory (or, for comparison, pickled frames)."""
+    """Detection in a worker process fed through shared memory (or, for comparison, pickled frames).
+
+    A source failing mid-run has its error raised once the frames already read are written, as in
+    single mode; the worker dying raises RunError (one line) unless a stop signal reached it too.
+    """
+    from .errors import RunError
     from .parallel import DetectorProcess
 
     summary = pipeline.summary
@@ -1237,15 +1341,20 @@ def _run_processes(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", r
     pacer = Pacer(rc.fps)
     submitted = 0
     ended = False
+    failure: Exception | None = None
     try:
         worker.submit(submitted, first.image)
         pending[submitted] = (first, t0, t1)
         submitted += 1
         while True:
             if _finished(summary, stop, rc):
-                return
+                break
             while not ended and not worker.full and not (rc.frames and submitted >= rc.frames):
-                frame, t0, t1 = _timed_read(source)
+                try:
+                    frame, t0, t1 = _timed_read(source)
+                except Exception as exc:  # noqa: BLE001 - raised below, after the frames in flight
+                    failure, ended = exc, True
+                    break
                 if frame is None:
                     ended = True
                     break
@@ -1254,8 +1363,14 @@ def _run_processes(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", r
                 submitted += 1
             if not pending:
                 summary.stop_reason = "source ended"
-                return
-            result = worker.receive()
+                break
+            try:
+                result = worker.receive()
+            except RunError as exc:
+                if stop:  # a stop signal sent to the whole group ended the worker too
+                    summary.stop_reason = f"stopped by {stop.reason}"
+                    return
+                raise RunError(f"{exc}; {summary.frames} frames processed; files are complete") from None
             if result is None:
                 continue
             index, found, stage_ns = result
@@ -1264,9 +1379,11 @@ def _run_processes(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", r
             pacer.wait()
             if pipeline.emit(record, 0):
                 summary.stop_reason = "stopped from the window (e)"
-                return
+                break
     finally:
         worker.close()
+    if failure is not None:
+        raise failure
 
 
 class LatestSlot:
@@ -1332,6 +1449,9 @@ def _print_summary(summary: RunSummary, out: TextIO) -> None:
         print(f"particles per frame: mean {p.mean:.1f}, min {p.min:.0f}, max {p.max:.0f}", file=out)
     print(summary.table(), file=out)
     print(f"frames per second: {fps:.1f} over {summary.wall_s:.2f} s", file=out)
+    for entry in summary.recordings:
+        outcome = f"failed ({entry['error']})" if "error" in entry else f"{entry.get('frames', 0)} frames"
+        print(f"panel recording {entry['path']}: {outcome}", file=out)
     pacing = summary.pacing()
     if pacing:
         print(f"output rate {pacing['rate']:.2f} frames/s; interval error p50 {pacing['jitter_p50_ms']:.3f} ms, "

@@ -11,7 +11,7 @@ from typing import TextIO
 
 import numpy as np
 
-from ..errors import UsageError
+from ..errors import UsageError, WriteError, check_output_path
 from ..outputs import open_output
 from ..runtime import Pacer, StopFlag
 from ..sources import open_source
@@ -32,7 +32,10 @@ class RecordRequest:
     outputs: light outputs driven as a plain lamp (white / black);
     buffer_mb, overflow: RAM for frames waiting to be encoded, and what to do when full;
     web: control panel address, empty = none; colour: BGR from the camera instead of the Y plane;
-    exposure_ms, gain: a fixed camera exposure and analogue gain (None: automatic).
+    exposure_ms, gain: a fixed camera exposure and analogue gain (None: automatic);
+    overwrite: replace an existing ``out`` (default False: a recording is never overwritten).
+    mcap: also write each recorded frame as a ROS 2 CompressedImage (PNG) with the recorder's
+        figures to this MCAP file (:mod:`antiscatter.mcap_out`); None = none.
     """
 
     out: Path
@@ -50,26 +53,48 @@ class RecordRequest:
     colour: bool = False
     exposure_ms: float | None = None
     gain: float | None = None
+    overwrite: bool = False
+    mcap: Path | None = None
 
 
 def record(request: RecordRequest, *, log: TextIO | None = None, out: TextIO | None = None) -> dict:
-    """Record until the limit, ``e``, the panel's Stop, Ctrl-C/SIGTERM or the source's end."""
+    """Record until the limit, ``e``, the panel's Stop, Ctrl-C/SIGTERM or the source's end.
+
+    A write the disk refuses (the file's or the spill file's) stops the recording: the summary is
+    printed with the frames the file holds, then :class:`~antiscatter.errors.WriteError` is raised.
+    """
     log = log or sys.stderr
     out = out or sys.stdout
-    if request.out.exists() and request.out.is_dir():
-        raise UsageError(f"{request.out}: is a folder, expected a .mkv file path")
+    if request.out.suffix.lower() != ".mkv" and not request.out.is_dir():
+        raise UsageError(f"{request.out}: allowed a .mkv file (FFV1 in Matroska)")
+    check_output_path(request.out, "output", overwrite=request.overwrite)
+    if request.mcap is not None:
+        from ..mcap_out import require_mcap
+
+        require_mcap()
+        check_output_path(request.mcap, "--mcap", suffixes=(".mcap",))
+    buffer_bytes = int(request.buffer_mb * 2 ** 20)
     with ExitStack() as stack:
+        stop = stack.enter_context(StopFlag())  # first: a signal from here on leaves a finished file
         source = stack.enter_context(open_source(request.source, size=request.size, fps=request.fps or None,
                                                  colour=request.colour, exposure_ms=request.exposure_ms,
                                                  gain=request.gain))
         lamps = [stack.enter_context(open_output(spec, fps=request.fps or 60.0)) for spec in request.outputs]
+        if request.overflow == "stop" and buffer_bytes < source.size[0] * source.size[1]:
+            _refuse_buffer(request, source.size[0] * source.size[1])
         white = np.full((800, 1280), 255, np.uint8)
         black = np.zeros_like(white)
         recorder = Recorder(request.out, fps=request.fps or source.fps or 30.0,
-                            buffer_bytes=int(request.buffer_mb * 2 ** 20), overflow=request.overflow)
+                            buffer_bytes=buffer_bytes, overflow=request.overflow)
+        log_mcap = clock = None
+        if request.mcap is not None:
+            from ..mcap_out import FrameClock, McapLog
+
+            log_mcap = stack.enter_context(McapLog(request.mcap))
+            live = getattr(source, "live", False)
+            clock = FrameClock(live=live, interval_s=0.0 if live else 1.0 / (request.fps or source.fps or 30.0))
         keys = TerminalKeys()
         stack.callback(keys.close)
-        stop = stack.enter_context(StopFlag())
         state = {"light": request.light, "recording": not request.paused, "lamp_shown": None}
         panel = None
         if request.web:
@@ -95,6 +120,7 @@ def record(request: RecordRequest, *, log: TextIO | None = None, out: TextIO | N
         reason = ""
         started = time.monotonic()
         message = ""
+        failure: WriteError | None = None
         try:
             while True:
                 for key in keys.poll():
@@ -128,10 +154,19 @@ def record(request: RecordRequest, *, log: TextIO | None = None, out: TextIO | N
                     try:
                         recorder.write(frame.image)
                         recorded += 1
+                        if log_mcap is not None:
+                            log_mcap.write(clock.stamp_ns(frame), image=frame.image, metrics={
+                                "Frame": frame.index, "Recorded": recorded, "Spilled": recorder.frames_spilled,
+                                "Light": int(state["light"])})
                     except RecorderFull as exc:
+                        if frame.image.nbytes > buffer_bytes:  # no frame ever fits: nothing was recorded
+                            _refuse_buffer(request, frame.image.nbytes)
                         message = str(exc)
                         print(message, file=log)
                         state["recording"] = False
+                    except WriteError as exc:  # the disk is full: stop, with the frames the file holds
+                        failure, message, reason = exc, str(exc), "write failed"
+                        break
                 if panel is not None:
                     panel.publish(image=frame.image, stats={
                         "captured": captured, "recorded": recorded, "buffered": recorder.frames_in - recorder.frames_encoded,
@@ -140,8 +175,19 @@ def record(request: RecordRequest, *, log: TextIO | None = None, out: TextIO | N
         finally:
             summary = recorder.close()
         seconds = time.monotonic() - started
+    what = failure.what if failure is not None else f"{request.out}: {summary.get('error', '')}"
+    if "error" in summary:  # the file's disk filled (perhaps while the last frames were encoded)
+        failure, reason = failure or WriteError(what), "write failed"
     summary.update(captured=captured, reason=reason, message=message, wall_seconds=seconds)
     print(f"recorded {summary['frames']} of {captured} captured frames to {request.out} ({reason}); dropped "
           f"{summary['dropped']}, spilled to disk {summary['spilled']}; {summary['bytes'] / 2 ** 20:.1f} MiB; "
           f"encoding {summary['encode_fps']:.0f} frames/s", file=out)
+    if failure is not None:
+        raise WriteError(f"{what}; stopped, the file holds {summary['frames']} of the {recorded} frames taken")
     return summary
+
+
+def _refuse_buffer(request: RecordRequest, frame_bytes: int) -> None:
+    """``--overflow stop`` with a buffer no frame fits in would record nothing: refused before recording."""
+    raise UsageError(f"--buffer-mb {request.buffer_mb:g}: smaller than one frame ({frame_bytes / 2 ** 20:.2f} MiB) "
+                     "with --overflow stop, nothing could be recorded; allowed at least one frame")
