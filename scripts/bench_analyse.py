@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from antiscatter.bench import at_least_one
+
 
 def make_videos(folder: Path, count: int, frames: int, preset: str) -> list[Path]:
     """The simulator videos (each in its own folder with its truth.csv), made where missing."""
@@ -115,21 +117,10 @@ def truth_diameters(folders: list[Path]) -> np.ndarray:
     return np.asarray(values)
 
 
-def count(text: str) -> int:
-    """An integer >= 1 from the command line (argparse turns the ValueError into a one-line error)."""
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"got {text!r}, allowed an integer >= 1")
-    return value
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--videos", type=count, default=8, help="simulator videos (default 8)")
-    parser.add_argument("--frames", type=count, default=600, help="frames a video, a multiple of 3 (default 600)")
+    parser.add_argument("--videos", type=at_least_one, default=8, help="simulator videos (default 8)")
+    parser.add_argument("--frames", type=at_least_one, default=600, help="frames a video, a multiple of 3 (default 600)")
     parser.add_argument("--preset", default="bubbles", help="simulator preset (default bubbles: the detector's "
                         "recall there is 0.98, docs/scoreboard.md)")
     parser.add_argument("--folder", type=Path, default=Path("/tmp/antiscatter-bench-analyse"),

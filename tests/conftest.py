@@ -40,6 +40,25 @@ def write_ffv1(path: Path, frames: list[np.ndarray], fps: int = 30) -> None:
             container.mux(packet)
 
 
+def csv_rows(path: Path) -> list[list[str]]:
+    """The rows of a CSV that must be whole: ends in a line break, every row as wide as the header."""
+    import csv
+
+    text = Path(path).read_text()
+    assert text.endswith("\n"), f"{path} ends in a partial row"
+    rows = list(csv.reader(text.splitlines()))
+    assert rows and all(len(r) == len(rows[0]) for r in rows), f"{path}: a row without the header's fields"
+    return rows
+
+
+def mkv_frames(path: Path) -> int:
+    """Frames of a video decoded to its end (an error on the way fails the test)."""
+    import av
+
+    with av.open(str(path)) as container:
+        return sum(1 for _ in container.decode(video=0))
+
+
 def numbered_frames(count: int, size: tuple[int, int] = (64, 48)) -> list[np.ndarray]:
     """Frames whose pixels encode their index and position (exact round trips)."""
     width, height = size

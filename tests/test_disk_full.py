@@ -5,7 +5,6 @@ First with fake writers that raise ENOSPC (no privilege needed), then on a real 
 count on every row, every MKV decodes to the last frame the message reports.
 """
 
-import csv
 import errno
 import os
 import re
@@ -18,24 +17,13 @@ import numpy as np
 import pytest
 
 from antiscatter import writing
+from conftest import csv_rows, mkv_frames
+
 from antiscatter.errors import WriteError
 from antiscatter.record import Recorder
 
 ENOSPC = OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 REAL_TEMPORARY_FILE = tempfile.TemporaryFile
-
-
-def csv_rows(path):
-    text = Path(path).read_text()
-    assert text.endswith("\n"), f"{path} ends in a partial row"
-    rows = list(csv.reader(text.splitlines()))
-    assert rows and all(len(r) == len(rows[0]) for r in rows), f"{path}: a row without the header's fields"
-    return rows
-
-
-def mkv_frames(path):
-    with av.open(str(path)) as container:
-        return sum(1 for _ in container.decode(video=0))
 
 
 def one_error_line(result):

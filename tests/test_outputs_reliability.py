@@ -5,35 +5,19 @@ it must leave (absent, untouched, or valid: every CSV parses with the header's f
 MKV decodes to its last frame).
 """
 
-import csv
 import os
 import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
-import av
 import pytest
+
+from conftest import csv_rows, mkv_frames
 
 from antiscatter.errors import UsageError, check_output_folder, check_output_path
 
 OLD = b"old,content\r\n1,2\r\n"
-
-
-def csv_rows(path):
-    """The rows of a CSV that must be whole: ends in a line break, every row as wide as the header."""
-    text = Path(path).read_text()
-    assert text.endswith("\n"), f"{path} ends in a partial row"
-    rows = list(csv.reader(text.splitlines()))
-    assert rows and all(len(r) == len(rows[0]) for r in rows), f"{path}: a row without the header's fields"
-    return rows
-
-
-def mkv_frames(path):
-    """Frames of a video decoded to its end (an error on the way fails the test)."""
-    with av.open(str(path)) as container:
-        return sum(1 for _ in container.decode(video=0))
 
 
 def check_files(tmp_path, files):

@@ -35,7 +35,8 @@ __all__ = ["BenchResult", "bench", "format_bench", "machine_description", "bench
 DEFAULT_SIZES = ((800, 600, "mixed"), (1456, 1088, "fullres"))
 
 
-def _at_least_one(text: str) -> int:
+def at_least_one(text: str) -> int:
+    """An integer >= 1 from the command line (argparse turns the error into its one line, exit 2)."""
     try:
         value = int(text)
     except ValueError:
@@ -51,8 +52,8 @@ def particle_bench_args(description: str | None, *, particles: int = 300, frames
     scripts that time one part of the chain for N particles over a number of frames; with
     ``preset``, also ``--preset NAME`` (a simulator preset, else argparse's error; default none)."""
     parser = argparse.ArgumentParser(description=description)
-    parser.add_argument("--particles", type=_at_least_one, default=particles)
-    parser.add_argument("--frames", type=_at_least_one, default=frames)
+    parser.add_argument("--particles", type=at_least_one, default=particles)
+    parser.add_argument("--frames", type=at_least_one, default=frames)
     if preset:
         from .simulate import PRESETS
 
