@@ -201,18 +201,18 @@ def bench(*, detectors: list[str] | None = None, frames: int = 200, threads: int
     cv2.setNumThreads(threads)
     try:
         results = []
-        for label_, pool in pools:
+        for title, pool in pools:
             if input == "y":
                 pool = [cv2.cvtColor(f, cv2.COLOR_BGR2GRAY) if f.ndim == 3 else f for f in pool]
             else:
                 pool = [cv2.cvtColor(f, cv2.COLOR_GRAY2BGR) if f.ndim == 2 else f for f in pool]
-            results.append(_bench_pool({name: make_detector(name) for name in names}, pool, label_, frames))
+            results.append(_bench_pool({name: make_detector(name) for name in names}, pool, title, frames))
     finally:
         cv2.setNumThreads(previous)
     return BenchResult(machine_description(), threads, frames, results, input)
 
 
-def _bench_pool(built: dict[str, Any], pool: list[np.ndarray], label_: str, frames: int) -> dict[str, Any]:
+def _bench_pool(built: dict[str, Any], pool: list[np.ndarray], title: str, frames: int) -> dict[str, Any]:
     """One pool's entry of :func:`bench`: every detector (fresh, warmed up over the pool) and the
     copy and chain floors, interleaved frame by frame in a rotating order."""
     distinct = len(pool)
@@ -247,7 +247,7 @@ def _bench_pool(built: dict[str, Any], pool: list[np.ndarray], label_: str, fram
     floor = float(np.median(copies)) / 1e3
     chain = float(np.median(chains)) / 1e3
     seed_median = float(np.median(totals["seed"])) / 1e3 if "seed" in totals else None
-    entry: dict[str, Any] = {"size": f"{width}x{height}", "preset": label_, "copy_floor_us": _stats(copies),
+    entry: dict[str, Any] = {"size": f"{width}x{height}", "preset": title, "copy_floor_us": _stats(copies),
                              "chain_floor_us": _stats(chains),
                              "chain_speedup_vs_seed": (seed_median / chain) if seed_median else None,
                              "detectors": {}, "_samples": {}}

@@ -369,6 +369,10 @@ def _joined(members: tuple[np.ndarray, np.ndarray, np.ndarray, int], image: np.n
     if not len(far):
         return out
     lab, x, y, n = members
+    involved = np.zeros(n, bool)
+    involved[comp[far]] = True
+    sel = involved[lab]  # only the pairs' components' pixels are read
+    lab, x, y = lab[sel], x[sel], y[sel]
     step = np.ceil(np.log2(np.maximum(level[far] * weights, 1.0)) * JOIN_LEVELS)
     order = np.lexsort((step, comp[far]))
     far, step = far[order], step[order]
@@ -387,9 +391,9 @@ def _joined(members: tuple[np.ndarray, np.ndarray, np.ndarray, int], image: np.n
         threshold = np.zeros(n)
         threshold[comp[at]] = np.exp2(step[rank == r] / JOIN_LEVELS)
         sel = wanted[lab]
-        (sx, sy), (shift_x, shift_y), strip = _strip(lab[sel], x[sel], y[sel], wanted,
-                                                     _bounds(lab[sel], x[sel], y[sel], n),
-                                                     values=(values[sel] > threshold[lab[sel]]).astype(np.uint8))
+        _, (shift_x, shift_y), strip = _strip(lab[sel], x[sel], y[sel], wanted,
+                                              _bounds(lab[sel], x[sel], y[sel], n),
+                                              values=(values[sel] > threshold[lab[sel]]).astype(np.uint8))
         _, labels = cv2.connectedComponents(strip, connectivity=8, ltype=cv2.CV_32S)
         ca = labels[a[1][at] + shift_y[comp[at]], a[0][at] + shift_x[comp[at]]]
         cb = labels[b[1][at] + shift_y[comp[at]], b[0][at] + shift_x[comp[at]]]
