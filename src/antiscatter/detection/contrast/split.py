@@ -40,6 +40,9 @@ DISC_DIP_FLOOR = 0.2
 DISC_PLATEAU = 0.7
 #: a flat core is looked at for necks up to this compactness (others up to 0.8, see _necked)
 FLAT_COMPACT = 0.94
+#: a shape's two distance-transform peaks are two discs when the distance dips between them by at
+#: least this many pixels (and ``DIP_SHARE`` of the smaller disc's radius)
+NECK_FLOOR = 1.0
 #: the shape test's distances are taken to this many steps a pixel (see :func:`_split_flat`)
 _DISTANCE_STEPS = 1024.0
 #: peaks this many working pixels apart or more (the smoothing's 3x3 no longer fills a neck
@@ -55,6 +58,11 @@ JOIN_LEVELS = 8
 #: the shape test's levels of the distance transform are taken to this step (px) when two peaks
 #: are looked for a path between them (:func:`_joined_in`)
 _JOIN_STEP = 0.125
+#: a peak is a particle of its own when the excess between it and its nearest higher peak dips
+#: below its height by both this share of that height and DIP_NOISE noise units: a segment
+#: samples many pixels, and at 3 units the grain of a textured flake or a ring's rim split it
+DIP_SHARE = 0.25
+DIP_NOISE = 5.0
 _BINOMIAL = np.array([1.0, 2.0, 1.0], np.float32)
 _BLOCK_X = np.array([0, 1, 0, 1])
 _BLOCK_Y = np.array([0, 0, 1, 1])
@@ -71,8 +79,8 @@ def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarr
     ``fine`` the compact spots of the unsmoothed excess (:func:`_spots`).  A peak
     other than the component's highest is a separate particle when its nearest
     higher peak is at least 2 px away and the excess on the segment between them
-    dips below it by both a quarter of its height and 3 noise units (so a narrow
-    neck counts).  This runs on all components at once, without Python loops.
+    dips below it by both ``DIP_SHARE`` of its height and ``DIP_NOISE`` noise units (so a
+    narrow neck counts).  This runs on all components at once, without Python loops.
     ``fine=False``: the maxima (5x5) of the 3x3-summed excess, at least 3 px
     apart (see :func:`measure`).
     Flat or saturated particles have no intensity dip; for components without
@@ -124,7 +132,8 @@ def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarr
     if fine:
         smoothed[spot] = False
     kept_c, kept_y, kept_x = _separate(pl[peaks], py[peaks], px[peaks], s[peaks].astype(np.float64) / weights,
-                                       excess, noise_at(noise, px[peaks], py[peaks], excess.shape), min_d2=min_d2,
+                                       excess, DIP_NOISE * noise_at(noise, px[peaks], py[peaks], excess.shape),
+                                       min_d2=min_d2,
                                        join=partial(_joined, (pl, px, py, n), smooth_img, weights),
                                        joinable=smoothed[peaks])
     counts = np.bincount(kept_c, minlength=n)
@@ -276,14 +285,15 @@ def _moments(lab: np.ndarray, x: np.ndarray, y: np.ndarray, n: int) -> tuple[np.
 
 
 def _separate(comp: np.ndarray, py: np.ndarray, px: np.ndarray, value: np.ndarray, excess: np.ndarray,
-              sigma: np.ndarray, min_d2: int = 9, discs: np.ndarray | None = None,
+              floor: np.ndarray, min_d2: int = 9, discs: np.ndarray | None = None,
               strict: np.ndarray | None = None, join: Callable[..., np.ndarray] | None = None,
               joinable: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The peaks that stand apart, for all components at once: (component, y, x) of each kept peak.
 
     The highest peak of each component is kept; another is kept when its
     nearest higher peak (same component) is at least sqrt(min_d2) px away and the
-    excess on the segment between them dips below its own by max(value / 4, 3 sigma) --
+    excess on the segment between them dips below its own by max(``DIP_SHARE`` of its value, its
+    ``floor``, in the excess's units) --
     or, where ``discs`` ((N,) bool per peak; ``excess`` a distance transform, values the radii of
     the discs the peaks are the centres of), by the neck two overlapping discs of those radii
     have there (:func:`_disc_neck_dip`); where ``strict`` ((N,) bool per peak) is False, by
@@ -297,7 +307,7 @@ def _separate(comp: np.ndarray, py: np.ndarray, px: np.ndarray, value: np.ndarra
     if len(comp) == 0:
         return comp, py, px
     order = np.lexsort((-value, comp))  # by component, highest first
-    comp, py, px, value, sigma = comp[order], py[order], px[order], value[order], sigma[order]
+    comp, py, px, value, floor = comp[order], py[order], px[order], value[order], floor[order]
     if discs is not None:
         discs = discs[order]
     if strict is not None:
@@ -335,7 +345,7 @@ def _separate(comp: np.ndarray, py: np.ndarray, px: np.ndarray, value: np.ndarra
             at += np.rint(t * dx[:, None]).astype(np.intp)
             at += start[:, None]
             dip = _gather(excess, start).astype(np.float64) - _gather(excess, at.ravel()).reshape(at.shape).min(axis=1)
-            need = np.maximum(value[i] / 4.0, 3.0 * sigma[i])
+            need = np.maximum(DIP_SHARE * value[i], floor[i])
             apart = dip >= need
             if join is not None and apart.any():
                 level = value[i] - JOIN_SHARE * need
@@ -505,7 +515,7 @@ def _split_flat(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarra
     if discs_only is not None:
         strict[discs_only] = False
     kept_c, kept_y, kept_x = _separate(lab[peak], cy[peak], cx[peak], value[peak].astype(np.float64),
-                                       distance, np.full(int(peak.sum()), 1.0 / 3.0), discs=flat[lab[peak]],
+                                       distance, np.full(int(peak.sum()), NECK_FLOOR), discs=flat[lab[peak]],
                                        strict=strict[lab[peak]],
                                        join=lambda _, a, b, level: _joined_in(distance, a, b, level, _JOIN_STEP))
     several = np.bincount(kept_c, minlength=n)[kept_c] >= 2
