@@ -823,8 +823,8 @@ def test_the_background_turns_and_scales_with_the_view(turn, zoom, pan, register
     if register:
         assert np.mean(counts[20:]) <= 23 and max(counts[20:]) <= 40, counts
         assert np.mean(counts[20:]) >= 16, counts  # the particles still found (no lamp here: see BRIGHTEN)
-    else:  # the texture shows through as particles
-        assert np.mean(counts[20:]) > 40
+    else:  # the texture shows through as particles: well over the registered view's bound
+        assert np.mean(counts[20:]) > 28, counts
 
 
 def _false_alarms_from_a_moving_vehicle(vehicle_m_s, *, particles=True, frames=50, yaw_deg_s=0.0):

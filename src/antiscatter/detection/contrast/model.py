@@ -51,7 +51,7 @@ class BackgroundModel(ViewFollowing):
     #: how far (working pixels) the learnt background may lie from the frame while the view moves:
     #: the pan follower's whole-pixel steps leave up to half a pixel, and the background learnt over
     #: the last frames lags
-    MISREGISTRATION = 1.0
+    MISREGISTRATION = 1.5
     #: frames after a move for which the view counts as moving
     MOVED_FRAMES = 8
     #: the learning's memory (frames) while the view moves, when the detector's own is longer: each
