@@ -10,7 +10,7 @@ import pytest
 
 from antiscatter.detections import Detections
 from antiscatter.errors import UsageError
-from antiscatter.web import ControlPanel, parse_address
+from antiscatter.web import Control, ControlPanel, parse_address
 
 from conftest import PanelProcess
 
@@ -55,6 +55,33 @@ def test_page_stats_stream_and_actions(panel):
     assert status == 200 and "multipart/x-mixed-replace" in kind and b"\xff\xd8" in body  # a JPEG
     status, _, body = request(panel, "POST", "/action/light", body=b"", headers={"X-Antiscatter-Token": panel.token})
     assert status == 200 and json.loads(body)["message"] == "light off" and panel.pressed == ["light"]
+
+
+def test_controls_are_listed_checked_and_applied():
+    level = [0.1]
+    control = Control("hole level", "of full light", 0.0, 1.0, 0.05, lambda: level[0],
+                      lambda v: level.__setitem__(0, v) or f"hole level {v:g} from the next frame")
+    with ControlPanel("0", title="test", controls={"level": control}, info={"source": "sim:<mixed>"}) as p:
+        token = {"X-Antiscatter-Token": p.token}
+        status, _, body = request(p, "GET", "/")
+        assert status == 200 and b"sim:&lt;mixed&gt;" in body and b'id="controls"' in body  # escaped
+        status, _, body = request(p, "GET", "/controls")
+        assert status == 200 and json.loads(body) == [{"name": "level", "label": "hole level", "unit": "of full light",
+                                                       "low": 0.0, "high": 1.0, "step": 0.05, "value": 0.1}]
+        status, _, body = request(p, "POST", "/control/level?value=0.25", headers=token)
+        assert status == 200 and json.loads(body)["message"] == "hole level 0.25 from the next frame"
+        assert level == [0.25]
+        for bad in ("1.5", "-0.1", "nan", "inf", "lots", ""):
+            status, _, body = request(p, "POST", f"/control/level?value={bad}", headers=token)
+            assert status == 400, bad
+            assert json.loads(body)["message"] == f"hole level: got {bad!r}, allowed 0 to 1 of full light"
+        assert level == [0.25]  # nothing refused was applied
+        status, _, _ = request(p, "POST", "/control/level?value=0.5")  # no token
+        assert status == 403 and level == [0.25]
+        status, _, body = request(p, "POST", "/control/level?value=0.5&value=0.6", headers=token)
+        assert status == 400 and level == [0.25]
+        for path in ("/control/gain?value=1", "/action/level", "/control/level/x?value=0.5"):
+            assert request(p, "POST", path, headers=token)[0] == 404, path
 
 
 @pytest.mark.parametrize("method, path, code", [("GET", "/etc/passwd", 404), ("GET", "/../../x", 404),

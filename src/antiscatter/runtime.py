@@ -825,7 +825,7 @@ class _Pipeline:
 
     def _publish(self, rec: _Record, latency_ns: int, dropped: int) -> None:
         summary = self.summary
-        sample = {"latency_ms": latency_ns / 1e6, "particles": float(len(rec.detections))}
+        sample = {"t": time.monotonic(), "latency_ms": latency_ns / 1e6, "particles": float(len(rec.detections))}
         stats = None
         if summary.frames % 10 == 1:
             recent = np.asarray(summary.latencies_ns[-120:], dtype=np.float64) / 1e6
@@ -986,6 +986,12 @@ def _serve_panel(panel: Any, pipeline: _Pipeline, stop: "StopFlag", log: TextIO)
         return "stopping"
 
     pipeline.log = log
+    config, (width, height) = pipeline.config, pipeline.camera_size
+    rate = config.run.fps or (1 / pipeline.frame_interval if pipeline.frame_interval else None)
+    panel.info.update({"source": config.source.spec, "detector": config.detector.name,
+                       "strategy": config.light.strategy, "frame": f"{width} x {height} px",
+                       "rate": f"{rate:g} frames/s" if rate else "the camera's",
+                       "mode": config.run.mode})
     panel.actions.update(light=light, record=record, stop=finish)
     panel.start()
     print(f"control panel: {panel.url}", file=log)

@@ -1,17 +1,20 @@
 """A control panel served by the running process (``--web [HOST:]PORT``).
 
-One page with live views (the input with detections drawn, the projector
-pattern), live figures and a latency / particle-count chart, and buttons that do
-what the report's keys did: light on/off, record start/stop, stop.  Views are
+One page, an operator's console: what runs (source, detector, strategy, frame
+size and rate), live views (the input with detections drawn, the projector
+pattern), live figures, a chart of latency and particle count on one time axis,
+buttons that do what the report's keys did (light on/off, record start/stop,
+stop), and controls for settings that apply from the next frame (the strategy's
+hole level, the detector's sensitivity), each checked against its range.  Views are
 MJPEG streams: each stream's JPEG is encoded once per preview frame, in a server
 thread, from the latest published frame, and every viewer is sent the same bytes
 -- the real-time loop only hands over references, however many watch.  Binds to
 127.0.0.1 unless a host is given; serves its page, its streams, ``/stats`` and
-``/action/<name>`` and nothing else (no files); anything else gets a 4xx.
+``/controls``, ``/action/<name>`` and ``/control/<name>?value=V`` and nothing else (no files); anything else gets a 4xx.
 
 Hardening: a request whose ``Host`` is not this panel's address is refused (403:
 no DNS rebinding), as is one whose ``Origin`` is a foreign site; an action also
-needs the run's token, which only the page carries (``X-Antiscatter-Token``), so
+and a control need the run's token, which only the page carries (``X-Antiscatter-Token``), so
 no other web page the operator opens can press a button.  Connections are
 capped and time out when idle; request bodies, chunked transfer, other methods
 and other HTTP versions are refused with a 4xx and the connection closed.
@@ -28,15 +31,19 @@ import socket
 import threading
 import time
 from http import HTTPStatus
+import html
+import math
+from dataclasses import dataclass
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any, Callable
+from urllib.parse import parse_qs, urlsplit
 
 import cv2
 import numpy as np
 
 from .errors import UsageError
 
-__all__ = ["ControlPanel", "parse_address"]
+__all__ = ["ControlPanel", "Control", "parse_address"]
 
 #: the header an action must carry the run's token in
 TOKEN_HEADER = "X-Antiscatter-Token"
@@ -85,6 +92,34 @@ def _is_ip(name: str) -> bool:
     return True
 
 
+@dataclass(frozen=True)
+class Control:
+    """A setting the operator may change while the run goes on (a number in ``low..high``).
+
+    label: what the page calls it; unit: shown beside it ("" for none); step: the input's step.
+    get: its value now; set: applies a checked value from the next frame, returns the message shown.
+    """
+
+    label: str
+    unit: str
+    low: float
+    high: float
+    step: float
+    get: Callable[[], float]
+    set: Callable[[float], str]
+
+    def check(self, text: str) -> float:
+        """``text`` as a value in range, or ValueError with the one-line message the page shows."""
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not (math.isfinite(value) and self.low <= value <= self.high):
+            unit = f" {self.unit}" if self.unit else ""
+            raise ValueError(f"{self.label}: got {text!r}, allowed {self.low:g} to {self.high:g}{unit}")
+        return value
+
+
 _PAGE = """<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>antiscatter — {title}</title>
 <meta name="viewport" content="width=device-width, initial-scale=1">
@@ -94,9 +129,13 @@ body {{ font-family: sans-serif; background: #111; color: #eee; margin: 1em; }}
 .views {{ display: flex; gap: 1em; flex-wrap: wrap; }}
 .views figure {{ margin: 0; }} img {{ max-width: 46vw; background: #222; border: 1px solid #444; }}
 button {{ font-size: 1.1em; margin-right: .5em; padding: .4em 1em; }}
-#stats td {{ padding: .1em .8em .1em 0; }} canvas {{ background: #1b1b1b; border: 1px solid #444; }}
+#stats td, #info td {{ padding: .1em .8em .1em 0; }} #info td:first-child {{ color: #999; }}
+canvas {{ background: #1b1b1b; border: 1px solid #444; }}
+#controls label {{ margin-right: .4em; }} #controls input {{ width: 5em; margin-right: .3em; }}
+#status.error {{ color: #f66; }}
 </style></head><body>
 <h1>antiscatter — {title}</h1>
+<table id="info">{info}</table>
 <p><button id="light" onclick="act('light')">Light on/off</button>
 <button id="record" onclick="act('record')">Record start/stop</button>
 <button id="stop" onclick="act('stop')">Stop</button> <span id="status"></span></p>
@@ -104,24 +143,61 @@ button {{ font-size: 1.1em; margin-right: .5em; padding: .4em 1em; }}
 <figure><img id="input" src="/stream/input.mjpg" alt="input with detections"><figcaption>input, detections in red</figcaption></figure>
 <figure><img id="pattern" src="/stream/pattern.mjpg" alt="projector pattern"><figcaption>projector pattern</figcaption></figure>
 </div>
+<form id="controls" onsubmit="return false"></form>
 <table id="stats"></table>
-<canvas id="chart" width="640" height="160"></canvas>
+<canvas id="chart" width="720" height="300"></canvas>
 <script>
 const TOKEN = document.querySelector('meta[name="antiscatter-token"]').content;
-async function act(name) {{
-  const r = await fetch('/action/' + name, {{method: 'POST', headers: {{'{header}': TOKEN}}}});
-  document.getElementById('status').textContent = r.ok ? (await r.json()).message : 'failed: ' + r.status;
+function say(text, error) {{
+  const e = document.getElementById('status'); e.textContent = text; e.className = error ? 'error' : '';
+}}
+async function post(path) {{
+  const r = await fetch(path, {{method: 'POST', headers: {{'{header}': TOKEN}}}});
+  let message = 'failed: ' + r.status;
+  try {{ message = (await r.json()).message; }} catch (e) {{}}
+  say(message, !r.ok);
+}}
+function act(name) {{ return post('/action/' + name); }}
+function setControl(name) {{
+  return post('/control/' + name + '?value=' + encodeURIComponent(document.getElementById('control-' + name).value));
+}}
+async function controls() {{
+  const list = await (await fetch('/controls')).json();
+  document.getElementById('controls').innerHTML = list.map(c =>
+    '<label for="control-' + c.name + '">' + c.label + (c.unit ? ' (' + c.unit + ')' : '') + '</label>' +
+    '<input id="control-' + c.name + '" type="number" step="' + c.step + '" value="' + c.value + '">' +
+    '<button id="set-' + c.name + '" onclick="setControl(\'' + c.name + '\')">Set</button> ').join('');
+}}
+function nice(top) {{  // an axis maximum of 1, 2 or 5 times a power of ten
+  const p = Math.pow(10, Math.floor(Math.log10(Math.max(top, 1e-9))));
+  return [1, 2, 5, 10].map(m => m * p).find(v => v >= top);
 }}
 function draw(history) {{
+  // one panel a series, one time axis (seconds before the last sample) under both
   const c = document.getElementById('chart'), g = c.getContext('2d');
-  g.clearRect(0, 0, c.width, c.height);
-  const series = [['latency_ms', '#f66'], ['particles', '#6cf']];
-  for (const [key, colour] of series) {{
-    const v = history.map(h => h[key]); if (!v.length) continue;
-    const top = Math.max(...v, 1e-9); g.strokeStyle = colour; g.beginPath();
-    v.forEach((y, i) => {{ const px = i * c.width / Math.max(v.length - 1, 1), py = c.height - 4 - y / top * (c.height - 8);
-      i ? g.lineTo(px, py) : g.moveTo(px, py); }});
-    g.stroke(); g.fillStyle = colour; g.fillText(key + ' (max ' + top.toFixed(1) + ')', 6, series.findIndex(s => s[0] == key) * 14 + 12);
+  g.clearRect(0, 0, c.width, c.height); g.font = '11px sans-serif';
+  const series = [['latency_ms', 'latency', 'ms', '#f66'], ['particles', 'particles', 'a frame', '#6cf']];
+  const left = 52, right = c.width - 8, bottom = c.height - 22, gap = 16;
+  const height = (bottom - 8 - gap) / series.length;
+  const t = history.map(h => h.t), last = t.length ? t[t.length - 1] : 0;
+  const span = Math.max(t.length ? last - t[0] : 1, 1);
+  const x = v => right - (last - v) / span * (right - left);
+  series.forEach(([key, name, unit, colour], k) => {{
+    const top = 8 + k * (height + gap), v = history.map(h => h[key]);
+    const max = nice(Math.max(...v, 0));
+    const y = value => top + height - value / max * height;
+    g.strokeStyle = '#555'; g.fillStyle = '#aaa'; g.beginPath();
+    for (const tick of [0, max / 2, max]) {{
+      g.moveTo(left, y(tick)); g.lineTo(right, y(tick)); g.fillText(String(+tick.toPrecision(3)), 4, y(tick) + 4);
+    }}
+    g.stroke(); g.fillStyle = colour; g.fillText(name + ' (' + unit + ')', left + 4, top + 10);
+    g.strokeStyle = colour; g.beginPath();
+    history.forEach((h, i) => {{ i ? g.lineTo(x(h.t), y(h[key])) : g.moveTo(x(h.t), y(h[key])); }});
+    g.stroke();
+  }});
+  g.fillStyle = '#aaa';
+  for (let k = 0; k <= 4; k++) {{
+    const ago = span * k / 4; g.fillText('-' + ago.toFixed(ago < 10 ? 1 : 0) + ' s', x(last - ago) - 14, c.height - 6);
   }}
 }}
 async function poll() {{
@@ -131,9 +207,10 @@ async function poll() {{
     document.getElementById('stats').innerHTML = rows.map(([k, v]) => '<tr><td>' + k + '</td><td id="stat-' + k + '">' +
       (typeof v == 'number' ? (Number.isInteger(v) ? v : v.toFixed(2)) : v) + '</td></tr>').join('');
     draw(s.history || []);
-  }} catch (e) {{ document.getElementById('status').textContent = 'disconnected'; }}
+  }} catch (e) {{ say('disconnected', true); }}
   setTimeout(poll, 500);
 }}
+controls();
 poll();
 </script></body></html>
 """
@@ -213,6 +290,12 @@ class ControlPanel:
     actions : dict
         Button name -> function called from a server thread, returning the message shown (keep it
         a flag flip).  May be filled in before ``start()``.
+    controls : dict
+        Name -> :class:`Control`: settings the page offers; a value out of range is refused (400)
+        with its message.  May be filled in before ``start()``.
+    info : dict
+        What runs (label -> text: source, detector, strategy, frame size and rate), shown at the
+        page's top.  May be filled in before ``start()``.
     preview_fps : float
         Frames per second of each stream, default 10 (encoded once each, whatever the viewers).
     jpeg_quality : int
@@ -227,6 +310,7 @@ class ControlPanel:
     """
 
     def __init__(self, address: str, *, title: str, actions: dict[str, Callable[[], str]] | None = None,
+                 controls: dict[str, Control] | None = None, info: dict[str, str] | None = None,
                  preview_fps: float = 10.0, jpeg_quality: int = 70, max_connections: int = 64,
                  idle_timeout_s: float = 10.0, start: bool = True) -> None:
         self.host, self.port = parse_address(address)
@@ -236,6 +320,8 @@ class ControlPanel:
             raise ValueError(f"idle_timeout_s: got {idle_timeout_s}, allowed > 0")
         self.title = title
         self.actions = {} if actions is None else actions
+        self.controls = {} if controls is None else controls
+        self.info = {} if info is None else info
         self.preview_period = 1.0 / preview_fps
         self.jpeg_quality = jpeg_quality
         self.token = secrets.token_urlsafe(24)  # per run: only the page (same origin) can read it
@@ -303,6 +389,26 @@ class ControlPanel:
             if sample is not None:
                 self.history.append(sample)
             self._version += 1
+
+    def page(self) -> str:
+        """The page, with what runs (``info``) filled in."""
+        info = "".join(f"<tr><td>{html.escape(k)}</td><td id=\"info-{html.escape(k.replace(' ', '-'))}\">"
+                       f"{html.escape(str(v))}</td></tr>" for k, v in self.info.items())
+        return _PAGE.format(title=html.escape(self.title), token=self.token, header=TOKEN_HEADER, info=info)
+
+    def control_list(self) -> list[dict[str, Any]]:
+        """The controls with their ranges and values now (what ``/controls`` serves)."""
+        return [{"name": name, "label": c.label, "unit": c.unit, "low": c.low, "high": c.high, "step": c.step,
+                 "value": c.get()} for name, c in self.controls.items()]
+
+    def set_control(self, name: str, text: str) -> tuple[bool, str]:
+        """(accepted, message): ``text`` checked against control ``name``'s range, then applied."""
+        control = self.controls[name]
+        try:
+            value = control.check(text)
+        except ValueError as exc:
+            return False, str(exc)
+        return True, control.set(value)
 
     def stats(self) -> dict[str, Any]:
         """The latest figures and the chart's history (what ``/stats`` serves)."""
@@ -452,8 +558,9 @@ def _make_handler(panel: ControlPanel, idle_timeout_s: float) -> type[BaseHTTPRe
 
         def do_GET(self) -> None:  # noqa: N802
             if self.path == "/":
-                page = _PAGE.format(title=panel.title, token=panel.token, header=TOKEN_HEADER)
-                self._send(HTTPStatus.OK, "text/html; charset=utf-8", page.encode())
+                self._send(HTTPStatus.OK, "text/html; charset=utf-8", panel.page().encode())
+            elif self.path == "/controls":
+                self._send(HTTPStatus.OK, "application/json", json.dumps(panel.control_list()).encode())
             elif self.path == "/stats":
                 self._send(HTTPStatus.OK, "application/json", json.dumps(panel.stats()).encode())
             elif self.path in ("/stream/input.mjpg", "/stream/pattern.mjpg"):
@@ -462,16 +569,24 @@ def _make_handler(panel: ControlPanel, idle_timeout_s: float) -> type[BaseHTTPRe
                 self._send(HTTPStatus.NOT_FOUND, "text/plain", b"not found\n")
 
         def do_POST(self) -> None:  # noqa: N802
-            name = self.path.removeprefix("/action/")
-            if not self.path.startswith("/action/") or name not in panel.actions:
-                self._send(HTTPStatus.NOT_FOUND, "text/plain", b"no such action\n")
+            url = urlsplit(self.path)
+            kind, _, name = url.path.lstrip("/").partition("/")
+            known = panel.actions if kind == "action" else panel.controls if kind == "control" else {}
+            if name not in known or (kind == "action" and url.query):
+                self._send(HTTPStatus.NOT_FOUND, "text/plain", f"no such {kind or 'action'}\n".encode())
                 return
             token = self.headers.get(TOKEN_HEADER, "")
             if not hmac.compare_digest(token.encode("utf-8", "replace"), panel.token.encode()):
                 self._refuse(HTTPStatus.FORBIDDEN, f"missing or wrong {TOKEN_HEADER}")
                 return
-            message = panel.actions[name]()
-            self._send(HTTPStatus.OK, "application/json", json.dumps({"message": message}).encode())
+            if kind == "action":
+                ok, message = True, panel.actions[name]()
+            else:
+                values = parse_qs(url.query, keep_blank_values=True).get("value", [])
+                ok, message = (panel.set_control(name, values[0]) if len(values) == 1
+                               else (False, f"{name}: expected one ?value="))
+            self._send(HTTPStatus.OK if ok else HTTPStatus.BAD_REQUEST, "application/json",
+                       json.dumps({"message": message}).encode())
 
         def _refuse(self, status: HTTPStatus, reason: str, *, allow: str = "") -> bool:
             """Answer ``status`` with ``reason`` and close the connection; returns False (request refused)."""

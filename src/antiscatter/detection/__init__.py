@@ -11,7 +11,7 @@ the next ones, and the runtime runs them once the pattern is out.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, fields, is_dataclass
+from dataclasses import dataclass, fields, is_dataclass, replace
 from typing import Any, Callable
 
 import numpy as np
@@ -165,6 +165,21 @@ def make_detector(name: str, params: Any = None) -> Detector:
     elif not isinstance(params, entry.params):
         raise TypeError(f"detector {name!r} takes {entry.params.__name__}, got {type(params).__name__}")
     return entry.build(params)
+
+
+def with_sensitivity(name: str, params: Any, value: float) -> Any:
+    """``params`` of detector ``name`` with its sensitivity parameter (``sweep``) at ``value`` and
+    the parameters tied to it (``sweep_scaled``) moved in proportion; ValueError from the params'
+    own check when the result is not allowed."""
+    entry = detector_entry(name)
+    key = entry.sweep[0]
+    if not key:
+        raise ValueError(f"detector {name!r} has no sensitivity parameter")
+    old = getattr(params, key)
+    value = type(old)(value)
+    scale = value / old if old else 1.0
+    changes = {key: value, **{tied: getattr(params, tied) * scale for tied in entry.sweep_scaled}}
+    return replace(params, **changes)
 
 
 def detect(image: np.ndarray, detector: str = "seed", **params: Any) -> Detections:

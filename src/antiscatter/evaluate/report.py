@@ -5,13 +5,12 @@ from __future__ import annotations
 import datetime as _dt
 import math
 import os
-from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
-from ..detection import DETECTORS, make_detector
+from ..detection import DETECTORS, make_detector, with_sensitivity
 from ..writing import CsvFile
 from .metrics import FrameScore, summarise
 
@@ -94,9 +93,7 @@ def sweep_detector(name: str, params: Any, evaluate: Callable[[Any], list[FrameS
         return []
     out = []
     for value in values:
-        scale = value / getattr(params, key) if getattr(params, key) else 1.0
-        changes = {key: value, **{tied: getattr(params, tied) * scale for tied in entry.sweep_scaled}}
-        detector = make_detector(name, replace(params, **changes))
+        detector = make_detector(name, with_sensitivity(name, params, value))
         out.append((value, summarise(evaluate(detector))))
     return out
 
