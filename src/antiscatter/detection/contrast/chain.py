@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 from ...detections import Detections
-from .. import Detector, Stage
+from .. import Detector, Pooled, Stage
 from .background import NOISE_WINDOW, _near, _rings, prominent_only, threshold_mask
 from .components import brightest, label, measure
 from .kernels import _disc
@@ -44,7 +44,8 @@ class ChainState:
     factor: int = 2
     #: width (full-resolution pixels) the scales (factor, cells, rings) are for; 0 = none yet (frames)
     width: int = 0
-    #: this frame's single channel at full resolution, (H, W) uint8 (frame: downsample -> measure)
+    #: this frame's single channel at full resolution, (H, W) uint8; None for a :class:`Pooled`
+    #: frame without its full plane (frame: downsample -> measure)
     grey: np.ndarray | None = None
     #: the lamp's light map given by ``set_light``, (H, W) in camera pixels, 1 or 255 = full;
     #: None = full everywhere (frames: until the next ``set_light``)
@@ -74,8 +75,15 @@ def build_contrast(params: ContrastParams) -> Detector:
     state = ChainState()
     persist_kernel = _disc(params.persist_radius) if params.persist_radius else None
 
-    def stage_downsample(image: np.ndarray) -> np.ndarray:
-        width = image.shape[1]
+    def working_size(width: int, height: int) -> tuple[int, int] | None:
+        """The plane a Pooled frame of width x height px carries: the working resolution (factor 2 or
+        more; at factor 1 the working image is the frame itself, blurred, and nothing is pooled)."""
+        factor = working_factor(width, params.factor)
+        return (width // factor, height // factor) if factor > 1 else None
+
+    def stage_downsample(image: np.ndarray | Pooled) -> np.ndarray:
+        # a Pooled frame (the camera's ISP scaled it): the scales are its full size's, nothing to pool
+        width = image.size[0] if isinstance(image, Pooled) else image.shape[1]
         if width != state.width:
             factor = working_factor(width, params.factor)
             wide = max(1.0, width / 800.0)  # cells and rings cover the same share of the view above 800 px
@@ -85,6 +93,9 @@ def build_contrast(params: ContrastParams) -> Detector:
             model.rings = tuple(sorted({max(int(round(r * wide / factor)), 2) for r in _rings(params.texture)}))
             model.noise_window = int(round(NOISE_WINDOW * wide)) | 1
         factor = state.factor
+        if isinstance(image, Pooled):
+            state.grey = image.full
+            return image.working
         grey = image if image.ndim == 2 else to_channel(image, params.channel)
         state.grey = grey
         return downsample(grey, factor=factor, channel=params.channel, point=params.point)
@@ -152,7 +163,7 @@ def build_contrast(params: ContrastParams) -> Detector:
         found = measure(components, excess, model.noise, halo=params.halo, core=params.core,
                         max_radius=params.max_radius, split=params.split, frame_width=state.width,
                         factor=state.factor, lone_k=params.lone_k, seen=seen,
-                        full=(state.grey, state.base), fine=state.frozen is None,
+                        full=None if state.grey is None else (state.grey, state.base), fine=state.frozen is None,
                         split_budget=int(SPLIT_BUDGET * mask.size))
         if params.coarse and state.frozen is None:
             still = model.learnt() and not model.moving() and model.base is not None
@@ -179,4 +190,5 @@ def build_contrast(params: ContrastParams) -> Detector:
         Stage("measure", "Measure Particles", stage_measure),
         Stage("update", "Background Update", stage_update, after=True),
     )
-    return Detector("contrast", stages, params, reset=model.reset, set_light=set_light, expect=expect)
+    return Detector("contrast", stages, params, reset=model.reset, set_light=set_light, expect=expect,
+                    working_size=working_size)
