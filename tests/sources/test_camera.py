@@ -329,6 +329,21 @@ def test_a_configuration_the_camera_refuses_is_one_line(monkeypatch):
     assert FakePicamera2.instances[-1].closed
 
 
+def test_a_lores_size_libcamera_adjusts_is_refused_in_one_line(monkeypatch):
+    # Picamera2 only logs an adjusted configuration and writes the sizes it gives into the config
+    configure = FakePicamera2.configure
+
+    def adjust(self, config):
+        config["lores"]["size"] = (400, 296)
+        configure(self, config)
+
+    monkeypatch.setattr(FakePicamera2, "configure", adjust)
+    with pytest.raises(UsageError, match=r"^source 'camera': the camera gives main 800x600, lores 400x296, not the "
+                                         r"main 800x600 and lores 400x300 asked"):
+        CameraSource(size=(800, 600), lores=(400, 300), picamera2=FakePicamera2)
+    assert FakePicamera2.instances[-1].closed
+
+
 @pytest.fixture
 def fake_camera(monkeypatch):
     import antiscatter.sources.camera as camera

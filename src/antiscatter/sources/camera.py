@@ -157,6 +157,8 @@ class CameraSource(FrameSource):
         except RuntimeError as exc:  # Picamera2 / libcamera refusing the streams (a lores it cannot make)
             self._cam.close()
             raise UsageError(f"source 'camera': the camera refused its configuration ({exc})") from None
+        if lores is not None:
+            self._check_adjusted(config, size, lores)
         self._cam.start()
         self.size = (int(size[0]), int(size[1]))
         self.fps = float(fps)
@@ -188,6 +190,22 @@ class CameraSource(FrameSource):
             frame = dataclasses.replace(frame, pooled=pooled)
         self._count += 1
         return frame
+
+    def _check_adjusted(self, config: Any, size: tuple[int, int], lores: tuple[int, int]) -> None:
+        """A one-line UsageError when libcamera adjusted the main or lores size it was asked for
+        (Picamera2 then only logs it and writes the sizes it gives back into ``config``): the
+        detections would be mapped back by the wrong factor."""
+        try:
+            given = {name: tuple(int(v) for v in config[name]["size"]) for name in ("main", "lores")}
+        except (KeyError, TypeError):  # a configuration object of another form: taken as asked
+            return
+        asked = {"main": tuple(size), "lores": tuple(lores)}
+        if given != asked:
+            self._cam.close()
+            raise UsageError("source 'camera': the camera gives " + ", ".join(
+                f"{name} {given[name][0]}x{given[name][1]}" for name in given)
+                + f", not the main {size[0]}x{size[1]} and lores {lores[0]}x{lores[1]} asked; allowed sizes it "
+                "keeps (try --size 1456x1088 or 728x544)")
 
     def _read_lores(self, request: Any, full: np.ndarray) -> Pooled:
         """The lores stream's Y plane copied out of the request (its first rows, the row padding
