@@ -8,13 +8,14 @@ from antiscatter.detection import Pooled, make_detector
 from antiscatter.detection.contrast import ContrastParams
 
 
-def _frame(width=800, height=600):
-    """A dark frame with noise and 12 grey discs of radius 3 px, 60 px apart (full-resolution pixels)."""
+def _frame(width=800, height=600, background=30, disc=180):
+    """A frame of ``background`` grey with noise and 12 discs of ``disc`` grey, radius 3 px, 60 px
+    apart (full-resolution pixels)."""
     rng = np.random.default_rng(5)
-    image = rng.normal(30, 2, (height, width)).clip(0, 255).astype(np.uint8)
+    image = rng.normal(background, 2, (height, width)).clip(0, 255).astype(np.uint8)
     centres = [(100.0 + 60 * i, 150.0 + 200 * (i % 3)) for i in range(12)]
     for x, y in centres:
-        cv2.circle(image, (int(x), int(y)), 3, 180, -1)
+        cv2.circle(image, (int(x), int(y)), 3, disc, -1)
     return image, np.array(centres)
 
 
@@ -30,6 +31,24 @@ def test_contrast_on_a_pooled_plane_finds_what_it_finds_on_the_full_frame_in_ful
         order = np.argsort(found.centres[:, 0])
         np.testing.assert_allclose(found.centres[order], centres, atol=0.6)  # the discs' centres, full-res px
         assert np.all((found.radii > 3) & (found.radii < 7))
+
+
+def test_the_lamps_light_map_is_pooled_as_the_isp_pooled_the_frame():
+    # a hole in the lamp's light over the frame: its edge in the working image is the ISP's (a 2x2
+    # mean), so the map's must be too -- the lores path then finds what point=0 finds on the full frame
+    image, _ = _frame(background=150, disc=250)  # bright ground: a rim pooled otherwise stands out
+    light = np.full(image.shape, 1.0, np.float32)
+    light[101:261, 151:471] = 0.3  # edges inside 2x2 blocks: a mean and a maximum differ there
+    lit = (image * light).astype(np.uint8)
+    plane = cv2.resize(lit, (400, 300), interpolation=cv2.INTER_AREA)
+    on_lores = make_detector("contrast", ContrastParams(memory=0))
+    same = make_detector("contrast", ContrastParams(memory=0, point=0.0))
+    for detector in (on_lores, same):
+        detector.set_light(light)
+    found, expected = on_lores.detect(Pooled(plane, 2, lit)), same.detect(lit)
+    assert len(found) >= 10
+    np.testing.assert_allclose(found.centres, expected.centres)
+    np.testing.assert_allclose(found.radii, expected.radii)
 
 
 def test_working_size_is_the_contrast_detectors_working_resolution():

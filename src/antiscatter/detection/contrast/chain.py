@@ -47,6 +47,10 @@ class ChainState:
     #: this frame's single channel at full resolution, (H, W) uint8; None for a :class:`Pooled`
     #: frame without its full plane (frame: downsample -> measure)
     grey: np.ndarray | None = None
+    #: share of each block's maximum in this frame's working pixels: ``ContrastParams.point``, or 0
+    #: for a :class:`Pooled` frame (the ISP's filter taken as the 2x2 mean), so the light map is
+    #: pooled as the frame was (frame: downsample -> background)
+    point: float = 0.0
     #: the lamp's light map given by ``set_light``, (H, W) in camera pixels, 1 or 255 = full;
     #: None = full everywhere (frames: until the next ``set_light``)
     light: np.ndarray | None = None
@@ -94,17 +98,17 @@ def build_contrast(params: ContrastParams) -> Detector:
             model.noise_window = int(round(NOISE_WINDOW * wide)) | 1
         factor = state.factor
         if isinstance(image, Pooled):
-            state.grey = image.full
+            state.grey, state.point = image.full, 0.0
             return image.working
         grey = image if image.ndim == 2 else to_channel(image, params.channel)
-        state.grey = grey
+        state.grey, state.point = grey, params.point
         return downsample(grey, factor=factor, channel=params.channel, point=params.point)
 
     def set_light(light: np.ndarray | None) -> None:
         state.light = light
 
     def stage_background(half: np.ndarray):
-        light = _working_light(state.light, half.shape, state.factor, params.point)
+        light = _working_light(state.light, half.shape, state.factor, state.point)
         state.frozen = None
         if light is None:
             return half, half, *model.estimate(half)
@@ -119,7 +123,7 @@ def build_contrast(params: ContrastParams) -> Detector:
         base, limit = model.estimate(reflectance)
         # the frame is compared with its background under the most light it may have had (a
         # hole's rim a pixel off the map is not a particle), learnt under the light it had
-        upper, state.dilated = _upper_light(state.light, half.shape, state.factor, params.point, state.dilated)
+        upper, state.dilated = _upper_light(state.light, half.shape, state.factor, state.point, state.dilated)
         return half, reflectance, cv2.multiply(base, light if upper is None else upper, scale=1 / 255), limit
 
     def expect(where: Detections | None) -> None:
