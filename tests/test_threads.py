@@ -95,7 +95,7 @@ class _Exploding:
 def test_a_crash_in_any_thread_stops_the_run_with_its_error(tmp_path, monkeypatch, mode):
     import io
     from antiscatter import runtime
-    monkeypatch.setattr(runtime, "_open_source", lambda config: _Exploding())
+    monkeypatch.setattr(runtime, "_open_source", lambda config, detector: _Exploding())
     started = time.monotonic()
     with pytest.raises(UsageError, match="frame 3 is unreadable"):
         run(_config(tmp_path, mode), log=io.StringIO(), out=io.StringIO())

@@ -24,7 +24,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from .detection import DETECTORS, make_detector
+from .detection import DETECTORS, Pooled, make_detector
 from .detection.contrast import downsample, label
 from .runtime import time_stages
 from .simulate import make_scene
@@ -110,7 +110,7 @@ CHAIN_CELL = 16
 CHAIN_LEVEL = 8
 
 
-def minimal_chain(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def minimal_chain(image: np.ndarray | Pooled) -> tuple[np.ndarray, np.ndarray]:
     """The least a local-contrast detector does, as a floor for ``bench`` to time (not a detector:
     no noise estimate, no learnt background, no splitting, no rejection): one channel ((H, W, 3)
     BGR -> luma; a grey or Y frame as it is), 2x2 block means, a background from the means of
@@ -118,8 +118,9 @@ def minimal_chain(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     above it, one labelling pass, and each component's centroid and equivalent radius.
 
     Returns (centres (N, 2), radii (N,)) in full-resolution pixels.  What a detector costs beyond
-    this is its own logic; what this costs, no detector of that design can save."""
-    half = downsample(image, factor=2)  # luma (or the grey frame), 2x2 block means
+    this is its own logic; what this costs, no detector of that design can save.  A
+    :class:`~antiscatter.detection.Pooled` frame at factor 2 (the ISP's lores plane) skips the pooling."""
+    half = image.working if isinstance(image, Pooled) else downsample(image, factor=2)  # luma, 2x2 block means
     h, w = half.shape
     cw, ch = max(w // CHAIN_CELL, 1), max(h // CHAIN_CELL, 1)
     cells = cv2.resize(half[: ch * CHAIN_CELL, : cw * CHAIN_CELL], (cw, ch), interpolation=cv2.INTER_AREA)

@@ -87,6 +87,10 @@ def build_parser() -> argparse.ArgumentParser:
                    "auto then pulses")
     g.add_argument("--camera-colour", action="store_true", default=None, help="BGR frames from the camera "
                    "instead of the Y plane of its YUV420 stream (the default: grey without conversion)")
+    g.add_argument("--camera-lores", action="store_true", default=None, help="the camera's ISP also scales each "
+                   "frame to the detector's working resolution (a lores YUV420 stream) and the detector takes "
+                   "that instead of pooling the full frame (off by default: less accurate, see "
+                   "docs/decisions/009-lores.md); grey frames, mode single or threads")
     g = run.add_argument_group("detector")
     g.add_argument("--detector", help=f"detector name ({_detector_help()})")
     g.add_argument("-p", "--param", action="append", metavar="KEY=VALUE", default=[],
@@ -1155,7 +1159,8 @@ def _run_config(args: argparse.Namespace):
         "source": {"spec": args.source, "crop": args.crop, "loop": args.loop, "preset": args.preset,
                    "seed": args.seed, "size": args.size, "camera_fps": args.camera_fps,
                    "camera_colour": args.camera_colour, "camera_exposure_ms": args.camera_exposure_ms,
-                   "camera_gain": args.camera_gain, "camera_lock": args.camera_lock},
+                   "camera_gain": args.camera_gain, "camera_lock": args.camera_lock,
+                   "camera_lores": args.camera_lores},
         "detector": {"name": args.detector},
         "pattern": {"margin": args.margin, "grow": args.grow, "grow_from": args.grow_from},
         "track": {"enabled": args.track, "predict": args.predict, "latency_ms": args.latency_ms},

@@ -63,6 +63,11 @@ class SourceConfig:
         as with the sensor's trigger on the projector's vsync.  Needs the camera with a fixed
         exposure inside one refresh, a frame period of whole refreshes, output ``kms`` (its flips
         say when the refreshes are) and mode ``single``; ``auto`` then picks ``pulse``.
+    camera_lores: the camera's ISP also scales each frame to the detector's working resolution (a
+        Picamera2 ``lores`` YUV420 stream), which the detector takes instead of pooling the full
+        frame itself (default false: the ISP's filter is not the detector's pooling and costs
+        accuracy, docs/decisions/009-lores.md).  Grey camera frames (not ``camera_colour``), a
+        detector with a working resolution below the frame's, mode single or threads.
     """
 
     spec: str = "sim"
@@ -76,6 +81,7 @@ class SourceConfig:
     camera_exposure_ms: float = 0.0
     camera_gain: float = 0.0
     camera_lock: bool = False
+    camera_lores: bool = False
 
     def __post_init__(self) -> None:
         if not self.spec.strip():
@@ -98,6 +104,9 @@ class SourceConfig:
             raise ValueError(f"camera_gain: got {self.camera_gain}, goes with a fixed camera_exposure_ms")
         if self.seed < 0:
             raise ValueError(f"seed: got {self.seed}, allowed >= 0")
+        if self.camera_lores and self.camera_colour:
+            raise ValueError("camera_lores: got true with camera_colour true, allowed with the grey (Y) camera "
+                             "frames only (the lores stream is the Y plane)")
 
 
 @dataclass(frozen=True)
@@ -642,6 +651,9 @@ def load_config(path: str | Path | None = None, overrides: dict[str, dict[str, A
         light = dataclasses.replace(light, levels="adaptive" if camera else "fixed")
     if light.compensate is None:  # only with a real mapping: a guessed one would put the light map wrong
         light = dataclasses.replace(light, compensate=camera and bool(sections["pattern"].mapping))
+    if camera and sections["source"].camera_lores and sections["run"].mode.startswith("processes"):
+        raise UsageError(f"source.camera_lores: goes with run.mode single or threads (a worker process is sent "
+                         f"the full frame and pools it itself), got mode {sections['run'].mode}")
     if light.strategy in ("flash", "pulse") and sections["run"].mode != "single":
         raise UsageError(f"light.strategy: {light.strategy} needs run.mode single (the exposure's light, the "
                          f"capture and the pattern take turns), got mode {sections['run'].mode}")

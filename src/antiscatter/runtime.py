@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from .config import Config, light_ahead_reaches, parse_size
-from .detection import Detector, check_frame_size, make_detector
+from .detection import Detector, Pooled, check_frame_size, make_detector
 from .detections import Detections
 from .errors import UsageError, check_output_path
 from .writing import CsvFile
@@ -76,7 +76,7 @@ def metrics_columns(detector: Detector) -> list[str]:
     return [*REPORT_COLUMNS, *EXTRA_COLUMNS, *extra_stages]
 
 
-def time_stages(detector: Detector, image: np.ndarray, *,
+def time_stages(detector: Detector, image: np.ndarray | Pooled, *,
                 clock: Callable[[], int] = time.perf_counter_ns, defer: bool = False) -> tuple[Detections, list[int]]:
     """Run the detector's stages on one frame, timing each: (detections, nanoseconds per stage).
 
@@ -266,13 +266,14 @@ def _open_csv(path: str, header: list[str]) -> CsvFile:
         raise UsageError(f"{path}: cannot be written ({exc.strerror or exc})") from None
 
 
-def _open_source(config: Config) -> FrameSource:
+def _open_source(config: Config, detector: Detector) -> FrameSource:
     sc = config.source
     crop = parse_crop(sc.crop) if sc.crop else None
     size = parse_size(sc.size) if sc.size else None
     return open_source(sc.spec, crop=crop, loop=sc.loop, sim_preset=sc.preset, seed=sc.seed,
                        size=size, fps=sc.camera_fps, colour=sc.camera_colour,
-                       exposure_ms=sc.camera_exposure_ms or None, gain=sc.camera_gain or None)
+                       exposure_ms=sc.camera_exposure_ms or None, gain=sc.camera_gain or None,
+                       working_size=detector.working_size if sc.camera_lores else None)
 
 
 @dataclass
@@ -447,7 +448,9 @@ class _Pipeline:
         tc = self.config.track
         learned = None
         if found is None:
-            detections, stage_ns = time_stages(self.detector, frame.image, clock=clock, defer=self.defer)
+            # a frame the camera's ISP also scaled (Frame.pooled) goes to the detector as that
+            detections, stage_ns = time_stages(self.detector, frame.image if frame.pooled is None else frame.pooled,
+                                               clock=clock, defer=self.defer)
             if len(stage_ns) < len(self.detector.stages):
                 learned = threading.Event()
         else:
@@ -899,7 +902,7 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
             from .web import ControlPanel
 
             panel = stack.enter_context(ControlPanel(rc.web, title="run", start=False))
-        source = stack.enter_context(source if source is not None else _open_source(config))
+        source = stack.enter_context(source if source is not None else _open_source(config, detector))
         check_frame_size(*source.size, what=f"source {config.source.spec}: frames", error=UsageError)
         calibration = None
         if config.pattern.calibration:  # before any file is written

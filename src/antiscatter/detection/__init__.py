@@ -18,7 +18,7 @@ import numpy as np
 
 from ..detections import Detections
 
-__all__ = ["Stage", "Detector", "DETECTORS", "register_detector", "detector_entry", "make_detector", "detect",
+__all__ = ["Stage", "Detector", "Pooled", "DETECTORS", "register_detector", "detector_entry", "make_detector", "detect",
            "MIN_FRAME_SIDE", "MAX_FRAME_PIXELS", "check_frame_size"]
 
 #: the fewest pixels a frame may have either way: no background cell, ring or half-resolution
@@ -77,7 +77,36 @@ class Stage:
     after: bool = False
 
 
+@dataclass(frozen=True, eq=False)
+class Pooled:
+    """A frame whose working-resolution plane was made before the detector: the camera's ISP
+    scaled it (a ``lores`` stream), so the CPU never pools the full frame.  A detector whose
+    ``working_size`` says which plane it wants takes this in place of the frame.
+
+    working: (H // factor, W // factor) uint8, the frame's Y (luma) plane at the detector's
+        working resolution.
+    factor: full-resolution pixels per working pixel, each way (>= 2): the detections come back in
+        full-resolution pixels, centres and radii, as from the full frame.
+    full: the full frame's own Y plane, (H, W) uint8, when the source has it (the camera's main
+        stream): the detector reads a few of its pixels for the shape of flat particles; None: it
+        works from ``working`` alone.
+    """
+
+    working: np.ndarray
+    factor: int
+    full: np.ndarray | None = None
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(W, H): the full frame's size, pixels."""
+        return self.working.shape[1] * self.factor, self.working.shape[0] * self.factor
+
+
 def _no_state() -> None:
+    return None
+
+
+def _full_frames_only(width: int, height: int) -> None:
     return None
 
 
@@ -98,6 +127,9 @@ class Detector:
     expect: where known particles should be in the next frame (Detections, camera pixels; for
         that frame only): a detector may accept fainter light there -- a tracked particle
         dimmed under its own hole -- than it would anywhere else.
+    working_size: (width, height) of frames -> the (width, height) of the working plane a
+        :class:`Pooled` frame of that size must carry, or None when the detector takes only whole
+        frames (the default; ``contrast`` at factor 1).  Its first stage then takes either.
     """
 
     name: str
@@ -106,19 +138,41 @@ class Detector:
     reset: Callable[[], None] = _no_state
     set_light: Callable[[Any], None] = _no_light
     expect: Callable[[Any], None] = _no_light
+    working_size: Callable[[int, int], tuple[int, int] | None] = _full_frames_only
 
-    def detect(self, image: np.ndarray) -> Detections:
+    def detect(self, image: np.ndarray | Pooled) -> Detections:
         """Run every stage on one frame, (H, W, 3) BGR or (H, W) grey uint8, at least
         ``MIN_FRAME_SIDE`` px either way (ValueError otherwise: 16-bit frames are scaled to 8 bits
-        first, as :func:`antiscatter.sources.folder.read_frame` does)."""
-        if image.dtype != np.uint8 or image.ndim not in (2, 3):
-            raise ValueError(f"frame of {image.dtype} with shape {image.shape}: allowed uint8, "
-                             "(H, W) grey or (H, W, 3) BGR")
-        check_frame_size(image.shape[1], image.shape[0])
+        first, as :func:`antiscatter.sources.folder.read_frame` does), or a :class:`Pooled` frame
+        whose plane has the ``working_size`` of its full size (ValueError otherwise)."""
+        if isinstance(image, Pooled):
+            self.check_pooled(image)
+        else:
+            if image.dtype != np.uint8 or image.ndim not in (2, 3):
+                raise ValueError(f"frame of {image.dtype} with shape {image.shape}: allowed uint8, "
+                                 "(H, W) grey or (H, W, 3) BGR")
+            check_frame_size(image.shape[1], image.shape[0])
         value: Any = image
         for stage in self.stages:
             value = stage.run(value)
         return value
+
+    def check_pooled(self, pooled: Pooled) -> None:
+        """ValueError unless this detector takes ``pooled``: a uint8 (h, w) plane of its
+        ``working_size`` for the full size, and a full plane, if any, of that size."""
+        plane = pooled.working
+        if plane.dtype != np.uint8 or plane.ndim != 2:
+            raise ValueError(f"pooled plane of {plane.dtype} with shape {plane.shape}: allowed uint8, (h, w)")
+        width, height = pooled.size
+        check_frame_size(width, height)
+        wanted = self.working_size(width, height)
+        if wanted != (plane.shape[1], plane.shape[0]):
+            raise ValueError(f"pooled plane of {plane.shape[1]}x{plane.shape[0]} px at factor {pooled.factor}: "
+                             f"detector {self.name!r} works on "
+                             + ("whole frames only" if wanted is None else f"{wanted[0]}x{wanted[1]} px")
+                             + f" for {width}x{height} px frames")
+        if pooled.full is not None and pooled.full.shape != (height, width):
+            raise ValueError(f"pooled full plane of shape {pooled.full.shape}: allowed ({height}, {width})")
 
 
 @dataclass(frozen=True)

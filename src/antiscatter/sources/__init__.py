@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
+from typing import Callable
 
 from ..detection import check_frame_size
 from ..errors import UsageError
@@ -33,10 +34,15 @@ def open_source(spec: str, *, crop: tuple[int, int, int, int] | None = None, loo
                 sim_preset: str = "seed", seed: int = 0,
                 size: tuple[int, int] | None = None, fps: float | None = None,
                 colour: bool = False, exposure_ms: float | None = None,
-                gain: float | None = None) -> FrameSource:
+                gain: float | None = None,
+                working_size: Callable[[int, int], tuple[int, int] | None] | None = None) -> FrameSource:
     """Open the source named by ``spec`` (see the module docstring); ``size`` (width, height) px is
     checked against the frame-size limits, and the camera's exposure and gain against its rule,
-    for every source and before anything is allocated."""
+    for every source and before anything is allocated.
+
+    working_size: the detector's ``Detector.working_size``: the camera then asks its ISP for a
+    ``lores`` stream of that size (``CameraSource``'s ``lores``); other sources ignore it.  None
+    (default): no lores stream."""
     if not spec or not spec.strip():
         raise UsageError(f"source {spec!r}: empty; allowed: {', '.join(SOURCE_KINDS)}")
     if spec in KEYWORDS and Path(spec).exists():
@@ -57,9 +63,18 @@ def open_source(spec: str, *, crop: tuple[int, int, int, int] | None = None, loo
         from .simulated import SimulatorSource
         return SimulatorSource(preset=sim_preset, seed=seed, size=size)
     if spec == "camera":
-        from .camera import CameraSource
-        return CameraSource(size=size or (728, 544), fps=fps or 60.0, colour=colour, exposure_ms=exposure_ms,
-                            gain=gain)
+        from .camera import DEFAULT_SIZE, CameraSource
+
+        size = size or DEFAULT_SIZE
+        lores = None
+        if working_size is not None:
+            lores = working_size(*size)
+            if lores is None:
+                raise UsageError(f"camera_lores: the detector works on whole {size[0]}x{size[1]} frames (no "
+                                 "working resolution below the frame's to scale to); allowed with contrast at "
+                                 "working factor 2")
+        return CameraSource(size=size, fps=fps or 60.0, colour=colour, exposure_ms=exposure_ms,
+                            gain=gain, lores=lores)
     match = _WEBCAM.match(spec)
     if match:
         from .webcam import WebcamSource

@@ -6,10 +6,13 @@ import os
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Iterator
+from typing import TYPE_CHECKING, Iterator
 
 import cv2
 import numpy as np
+
+if TYPE_CHECKING:
+    from ..detection import Pooled
 
 __all__ = ["Frame", "FrameSource", "quiet_opencv"]
 
@@ -41,12 +44,15 @@ class Frame:
         exposure where the camera says when it exposed (the particles are seen where they were
         then), the time the frame was read otherwise.
     exposure_ns: how long the frame was exposed, 0 when unknown (a file, the simulator).
+    pooled: the frame at the detector's working resolution, made by the camera's ISP (a ``lores``
+        stream), which the runtime hands the detector in place of ``image``; None (default): none.
     """
 
     image: np.ndarray
     index: int
     timestamp_ns: int
     exposure_ns: int = 0
+    pooled: Pooled | None = None
 
     @property
     def exposure_start_ns(self) -> int:

@@ -7,13 +7,21 @@ Picamera2 is not usable from PyPI off the Pi: on Raspberry Pi OS it is the
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any, Callable
 
+import numpy as np
+
+from ..detection import Pooled
 from ..errors import UsageError
 from .base import Frame, FrameSource
 
-__all__ = ["CameraSource", "load_picamera2", "camera_controls", "exposure_fault", "frame_us", "GAIN_RANGE"]
+__all__ = ["CameraSource", "load_picamera2", "camera_controls", "exposure_fault", "frame_us", "lores_fault",
+           "GAIN_RANGE", "DEFAULT_SIZE"]
+
+#: the camera's frame size unless one is given, (width, height) px: half the IMX296 sensor, as in the report
+DEFAULT_SIZE = (728, 544)
 
 #: the sensor's analogue gain, lowest to highest (IMX296)
 GAIN_RANGE = (1.0, 64.0)
@@ -35,6 +43,22 @@ def exposure_fault(fps: float, exposure_ms: float | None, gain: float | None) ->
         return "exposure"
     if gain is not None and not (math.isfinite(gain) and GAIN_RANGE[0] <= gain <= GAIN_RANGE[1]):
         return "gain"
+    return None
+
+
+def lores_fault(size: tuple[int, int], lores: tuple[int, int]) -> str | None:
+    """Why the ISP cannot give a ``lores`` YUV420 stream of ``lores`` (width, height) px beside a main
+    stream of ``size`` as the detector needs it, or None.  The ISP only scales down (Picamera2
+    refuses a lores larger than main) and YUV420 halves the chroma both ways (even sides); the
+    detector maps its particles back by a whole factor, the same both ways (main = factor x lores)."""
+    (w, h), (lw, lh) = size, lores
+    if lw <= 0 or lh <= 0 or lw % 2 or lh % 2:
+        return "its sides must be even (YUV420)"
+    if lw > w or lh > h:
+        return f"larger than the main stream's {w}x{h} (the ISP only scales down)"
+    if w % lw or h % lh or w // lw != h // lh or w // lw < 2:
+        return (f"the main stream's {w}x{h} must be a whole multiple of it, 2 or more, the same both ways "
+                "(the detections are mapped back by that factor)")
     return None
 
 
@@ -85,6 +109,11 @@ class CameraSource(FrameSource):
         fixed: automatic exposure stretches it towards the frame period over dark water, across
         several projector refreshes.
     gain: the analogue gain with a fixed exposure (1.0 to 64; default 1.0).
+    lores: (width, height) of a second, ``lores`` YUV420 stream the ISP scales from the same frame,
+        whose Y plane each frame carries (``Frame.pooled``, with the main Y plane as its full
+        plane) so the detector never pools the full frame; the detector's working size
+        (``Detector.working_size``); None (default): main stream only.  Grey main stream only
+        (``colour`` False); a size :func:`lores_fault` refuses is a one-line UsageError.
     picamera2, mapped_array: the Picamera2 and MappedArray classes (tests pass
         fakes); loaded lazily when None.
 
@@ -98,10 +127,18 @@ class CameraSource(FrameSource):
     name = "camera"
     live = True
 
-    def __init__(self, *, size: tuple[int, int] = (728, 544), fps: float = 60.0, colour: bool = False,
-                 exposure_ms: float | None = None, gain: float | None = None,
+    def __init__(self, *, size: tuple[int, int] = DEFAULT_SIZE, fps: float = 60.0, colour: bool = False,
+                 exposure_ms: float | None = None, gain: float | None = None, lores: tuple[int, int] | None = None,
                  picamera2: Callable[[], Any] | None = None, mapped_array: Any = None) -> None:
         controls = camera_controls(fps, exposure_ms, gain)
+        streams: dict[str, Any] = {}
+        if lores is not None:
+            lores = (int(lores[0]), int(lores[1]))
+            fault = "goes with the grey (Y) main stream, not camera colour" if colour else lores_fault(size, lores)
+            if fault:
+                raise UsageError(f"camera lores {lores[0]}x{lores[1]} beside main {size[0]}x{size[1]}: {fault}")
+            streams["lores"] = {"size": lores, "format": "YUV420"}
+        self.lores = lores
         if picamera2 is None:
             picamera2, mapped_array = load_picamera2()
         factory = picamera2
@@ -114,8 +151,14 @@ class CameraSource(FrameSource):
         # Picamera2's "RGB888" is stored B, G, R per pixel: OpenCV's BGR order.
         config = self._cam.create_video_configuration(
             main={"size": tuple(size), "format": "RGB888" if colour else "YUV420"}, buffer_count=3, queue=False,
-            controls=controls)
-        self._cam.configure(config)
+            controls=controls, **streams)
+        try:
+            self._cam.configure(config)
+        except RuntimeError as exc:  # Picamera2 / libcamera refusing the streams (a lores it cannot make)
+            self._cam.close()
+            raise UsageError(f"source 'camera': the camera refused its configuration ({exc})") from None
+        if lores is not None:
+            self._check_adjusted(config, size, lores)
         self._cam.start()
         self.size = (int(size[0]), int(size[1]))
         self.fps = float(fps)
@@ -132,6 +175,7 @@ class CameraSource(FrameSource):
                 with self._mapped(request, "main") as mapped:
                     # YUV420: the first `height` rows are Y; copy that plane only
                     image = mapped.array[: self.size[1], : self.size[0]].copy()
+            pooled = None if self.lores is None else self._read_lores(request, image)
             metadata = request.get_metadata()
         finally:
             request.release()
@@ -142,8 +186,37 @@ class CameraSource(FrameSource):
         exposure_ns = int(round(float(metadata.get("ExposureTime") or 0) * 1e3)) if stamp else 0
         frame = (Frame(image, self._count, int(stamp) - exposure_ns // 2, exposure_ns) if stamp
                  else Frame(image, self._count, self.now_ns()))
+        if pooled is not None:
+            frame = dataclasses.replace(frame, pooled=pooled)
         self._count += 1
         return frame
+
+    def _check_adjusted(self, config: Any, size: tuple[int, int], lores: tuple[int, int]) -> None:
+        """A one-line UsageError when libcamera adjusted the main or lores size it was asked for
+        (Picamera2 then only logs it and writes the sizes it gives back into ``config``): the
+        detections would be mapped back by the wrong factor."""
+        try:
+            given = {name: tuple(int(v) for v in config[name]["size"]) for name in ("main", "lores")}
+        except (KeyError, TypeError):  # a configuration object of another form: taken as asked
+            return
+        asked = {"main": tuple(size), "lores": tuple(lores)}
+        if given != asked:
+            self._cam.close()
+            raise UsageError("source 'camera': the camera gives " + ", ".join(
+                f"{name} {given[name][0]}x{given[name][1]}" for name in given)
+                + f", not the main {size[0]}x{size[1]} and lores {lores[0]}x{lores[1]} asked; allowed sizes it "
+                "keeps (try --size 1456x1088 or 728x544)")
+
+    def _read_lores(self, request: Any, full: np.ndarray) -> Pooled:
+        """The lores stream's Y plane copied out of the request (its first rows, the row padding
+        cut off), with ``full`` (the main Y plane) as its full plane."""
+        w, h = self.lores
+        if self._mapped is None:
+            plane = request.make_array("lores")[:h, :w].copy()
+        else:
+            with self._mapped(request, "lores") as mapped:
+                plane = mapped.array[:h, :w].copy()
+        return Pooled(plane, self.size[0] // w, full)
 
     @property
     def shortest_frame_ns(self) -> int:

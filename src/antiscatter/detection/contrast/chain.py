@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 from ...detections import Detections
-from .. import Detector, Stage
+from .. import Detector, Pooled, Stage
 from .background import NOISE_WINDOW, _near, _rings, prominent_only, threshold_mask
 from .components import brightest, label, measure
 from .kernels import _disc
@@ -44,8 +44,13 @@ class ChainState:
     factor: int = 2
     #: width (full-resolution pixels) the scales (factor, cells, rings) are for; 0 = none yet (frames)
     width: int = 0
-    #: this frame's single channel at full resolution, (H, W) uint8 (frame: downsample -> measure)
+    #: this frame's single channel at full resolution, (H, W) uint8; None for a :class:`Pooled`
+    #: frame without its full plane (frame: downsample -> measure)
     grey: np.ndarray | None = None
+    #: share of each block's maximum in this frame's working pixels: ``ContrastParams.point``, or 0
+    #: for a :class:`Pooled` frame (the ISP's filter taken as the 2x2 mean), so the light map is
+    #: pooled as the frame was (frame: downsample -> background)
+    point: float = 0.0
     #: the lamp's light map given by ``set_light``, (H, W) in camera pixels, 1 or 255 = full;
     #: None = full everywhere (frames: until the next ``set_light``)
     light: np.ndarray | None = None
@@ -74,8 +79,15 @@ def build_contrast(params: ContrastParams) -> Detector:
     state = ChainState()
     persist_kernel = _disc(params.persist_radius) if params.persist_radius else None
 
-    def stage_downsample(image: np.ndarray) -> np.ndarray:
-        width = image.shape[1]
+    def working_size(width: int, height: int) -> tuple[int, int] | None:
+        """The plane a Pooled frame of width x height px carries: the working resolution (factor 2 or
+        more; at factor 1 the working image is the frame itself, blurred, and nothing is pooled)."""
+        factor = working_factor(width, params.factor)
+        return (width // factor, height // factor) if factor > 1 else None
+
+    def stage_downsample(image: np.ndarray | Pooled) -> np.ndarray:
+        # a Pooled frame (the camera's ISP scaled it): the scales are its full size's, nothing to pool
+        width = image.size[0] if isinstance(image, Pooled) else image.shape[1]
         if width != state.width:
             factor = working_factor(width, params.factor)
             wide = max(1.0, width / 800.0)  # cells and rings cover the same share of the view above 800 px
@@ -85,15 +97,18 @@ def build_contrast(params: ContrastParams) -> Detector:
             model.rings = tuple(sorted({max(int(round(r * wide / factor)), 2) for r in _rings(params.texture)}))
             model.noise_window = int(round(NOISE_WINDOW * wide)) | 1
         factor = state.factor
+        if isinstance(image, Pooled):
+            state.grey, state.point = image.full, 0.0
+            return image.working
         grey = image if image.ndim == 2 else to_channel(image, params.channel)
-        state.grey = grey
+        state.grey, state.point = grey, params.point
         return downsample(grey, factor=factor, channel=params.channel, point=params.point)
 
     def set_light(light: np.ndarray | None) -> None:
         state.light = light
 
     def stage_background(half: np.ndarray):
-        light = _working_light(state.light, half.shape, state.factor, params.point)
+        light = _working_light(state.light, half.shape, state.factor, state.point)
         state.frozen = None
         if light is None:
             return half, half, *model.estimate(half)
@@ -108,7 +123,7 @@ def build_contrast(params: ContrastParams) -> Detector:
         base, limit = model.estimate(reflectance)
         # the frame is compared with its background under the most light it may have had (a
         # hole's rim a pixel off the map is not a particle), learnt under the light it had
-        upper, state.dilated = _upper_light(state.light, half.shape, state.factor, params.point, state.dilated)
+        upper, state.dilated = _upper_light(state.light, half.shape, state.factor, state.point, state.dilated)
         return half, reflectance, cv2.multiply(base, light if upper is None else upper, scale=1 / 255), limit
 
     def expect(where: Detections | None) -> None:
@@ -152,7 +167,7 @@ def build_contrast(params: ContrastParams) -> Detector:
         found = measure(components, excess, model.noise, halo=params.halo, core=params.core,
                         max_radius=params.max_radius, split=params.split, frame_width=state.width,
                         factor=state.factor, lone_k=params.lone_k, seen=seen,
-                        full=(state.grey, state.base), fine=state.frozen is None,
+                        full=None if state.grey is None else (state.grey, state.base), fine=state.frozen is None,
                         split_budget=int(SPLIT_BUDGET * mask.size))
         if params.coarse and state.frozen is None:
             still = model.learnt() and not model.moving() and model.base is not None
@@ -179,4 +194,5 @@ def build_contrast(params: ContrastParams) -> Detector:
         Stage("measure", "Measure Particles", stage_measure),
         Stage("update", "Background Update", stage_update, after=True),
     )
-    return Detector("contrast", stages, params, reset=model.reset, set_light=set_light, expect=expect)
+    return Detector("contrast", stages, params, reset=model.reset, set_light=set_light, expect=expect,
+                    working_size=working_size)
