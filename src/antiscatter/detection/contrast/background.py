@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from ...detections import Detections
+from .bands import BandPool
 from .kernels import _disc
 
 
@@ -37,13 +38,14 @@ def local_median(image: np.ndarray, window: int) -> np.ndarray:
     return cv2.resize(cv2.medianBlur(small, kernel), (w, h), interpolation=cv2.INTER_LINEAR)
 
 
-def spatial_background(half: np.ndarray, *, cell: int, window: int = 0) -> np.ndarray:
+def spatial_background(half: np.ndarray, *, cell: int, window: int = 0, pool: BandPool | None = None) -> np.ndarray:
     """Background of a working-resolution frame from that frame alone, float32 (h, w): the 3x3
     median of the cell means (the lamp's cone, the scene's brightness at a coarse scale), raised
     to the frame's ``window`` x ``window`` median where that is brighter (texture: a pebble,
     a padding highlight larger than half the window stays background, a particle smaller does not).
 
     cell: cell size, window: median window (0 = none), both in working-resolution pixels.
+    pool: threads the texture median runs on in bands (None: the caller's alone; the same result).
     """
     h, w = half.shape
     c = max(cell, 1)
@@ -57,7 +59,11 @@ def spatial_background(half: np.ndarray, *, cell: int, window: int = 0) -> np.nd
         # as local_median takes, blur it into false spots along lit patches' rims)
         small = cv2.resize(half, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
         # OpenCV's 8-bit median takes windows up to 255 (frames over 6000 px wide ask for more)
-        texture = cv2.medianBlur(small, min(max(int(round(window / 2)) | 1, 3), 255))
+        kernel = min(max(int(round(window / 2)) | 1, 3), 255)
+        if pool is None or pool.threads == 1:
+            texture = cv2.medianBlur(small, kernel)
+        else:
+            texture = pool.filter(lambda rows: cv2.medianBlur(rows, kernel), small, kernel // 2, np.empty_like(small))
         coarse = cv2.max(coarse, cv2.resize(texture, (w, h), interpolation=cv2.INTER_LINEAR).astype(coarse.dtype))
     return coarse.astype(np.float32, copy=False)
 
@@ -101,7 +107,7 @@ NOISE_WINDOW = 13
 
 
 def prominence_level(half: np.ndarray, rings: tuple[int, ...], *, cell: int,
-                     window: int = NOISE_WINDOW) -> tuple[np.ndarray, np.ndarray]:
+                     window: int = NOISE_WINDOW, pool: BandPool | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(level uint8 (h, w), noise float32 per coarse cell) of a working-resolution frame, from that
     frame alone.
 
@@ -112,18 +118,30 @@ def prominence_level(half: np.ndarray, rings: tuple[int, ...], *, cell: int,
     spread of the frame about its ``window`` x ``window`` median, both ways, as a Gaussian's sigma
     -- the sensor's noise on plain water, the texture's grain on textured ground, where a spot
     must outshine more to count (both ways: on one frame the texture's bright side is what
-    makes false alarms).
+    makes false alarms).  pool: threads the rings run on in bands (None: the caller's alone; the
+    same result).
     """
     h, w = half.shape
-    level = None
-    for radius in rings:
-        ring = cv2.dilate(half, _ring(radius))
-        level = ring if level is None else cv2.min(level, ring)
+    if not rings:
+        level = None
+    elif pool is None or pool.threads == 1:
+        level = ring_level(half, rings)
+    else:  # a ring reaches its radius plus its width (2) from the centre
+        level = pool.filter(lambda rows: ring_level(rows, rings), half, max(rings) + 2, np.empty_like(half))
     middle = local_median(half, window)
     spread = cv2.absdiff(half, middle).astype(np.float32)
     cells = cv2.resize(spread, (max(w // cell, 3), max(h // cell, 3)), interpolation=cv2.INTER_AREA)
     noise = cv2.medianBlur(cells, 3) * np.float32(1.2533)  # s = sqrt(pi / 2) E|x| for Gaussian noise
     return level, noise
+
+
+def ring_level(half: np.ndarray, rings: tuple[int, ...]) -> np.ndarray:
+    """uint8 (h, w): for each pixel the lowest, over the rings of ``rings`` radii (pixels, at least
+    one), of the brightest pixel on the ring around it (see :func:`prominence_level`)."""
+    level = cv2.dilate(half, _ring(rings[0]))
+    for radius in rings[1:]:
+        cv2.min(level, cv2.dilate(half, _ring(radius)), dst=level)
+    return level
 
 
 def threshold_mask(half: np.ndarray, base: np.ndarray, limit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -174,12 +192,13 @@ class FrameAlone(NamedTuple):
 
 
 def frame_alone(half: np.ndarray, *, cell: int, window: int, rings: tuple[int, ...], noise_window: int,
-                k: float, min_contrast: float) -> FrameAlone:
+                k: float, min_contrast: float, pool: BandPool | None = None) -> FrameAlone:
     """A frame's candidates by the frame alone, as a first frame is detected: its excess over its
     spatial background beyond ``k`` times the noise at the rings' scale (and ``min_contrast``), cut
-    to the spots that outshine their ``rings``."""
-    base = cv2.convertScaleAbs(spatial_background(half, cell=cell, window=window))
-    level, noise = prominence_level(half, rings, cell=cell, window=noise_window)
+    to the spots that outshine their ``rings``.  pool: threads its filters run on in bands (None:
+    the caller's alone; the same result)."""
+    base = cv2.convertScaleAbs(spatial_background(half, cell=cell, window=window, pool=pool))
+    level, noise = prominence_level(half, rings, cell=cell, window=noise_window, pool=pool)
     limit = limit_map(noise, half.shape, k, min_contrast)
     mask, excess = threshold_mask(half, base, limit)
     mask = prominent_only(mask, threshold_mask(half, level, limit)[0], max(rings[-1] // 2, 1))

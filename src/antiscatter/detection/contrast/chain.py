@@ -14,6 +14,7 @@ import numpy as np
 
 from ...detections import Detections
 from .. import Detector, Stage
+from .bands import BandPool, downsample_in_bands
 from .background import NOISE_WINDOW, _near, _rings, prominent_only, threshold_mask
 from .components import brightest, label, measure
 from .kernels import _disc
@@ -67,10 +68,15 @@ class ChainState:
     seen: np.ndarray | None = None
 
 
-def build_contrast(params: ContrastParams) -> Detector:
-    """The ``contrast`` chain as timed stages (one background model per detector instance)."""
+def build_contrast(params: ContrastParams, *, threads: int = 1) -> Detector:
+    """The ``contrast`` chain as timed stages (one background model per detector instance).
+
+    threads: threads the frame-wide filters (pooling, a single frame's rings and texture median)
+    run on, in bands of the frame (:class:`~.bands.BandPool`; default 1); the detections and what
+    the model learns are the same on any number."""
+    pool = BandPool(threads)
     model = BackgroundModel(cell=params.cell, memory=params.memory, k=params.k, min_contrast=params.min_contrast,
-                            follow=params.follow, defer_looks=True)
+                            follow=params.follow, defer_looks=True, pool=pool if threads > 1 else None)
     state = ChainState()
     persist_kernel = _disc(params.persist_radius) if params.persist_radius else None
 
@@ -85,6 +91,10 @@ def build_contrast(params: ContrastParams) -> Detector:
             model.rings = tuple(sorted({max(int(round(r * wide / factor)), 2) for r in _rings(params.texture)}))
             model.noise_window = int(round(NOISE_WINDOW * wide)) | 1
         factor = state.factor
+        if pool.threads > 1 and factor > 1 and image.shape[0] % factor == 0 and image.shape[1] % factor == 0:
+            state.grey, half = downsample_in_bands(image, pool, factor=factor, channel=params.channel,
+                                                   point=params.point)
+            return half
         grey = image if image.ndim == 2 else to_channel(image, params.channel)
         state.grey = grey
         return downsample(grey, factor=factor, channel=params.channel, point=params.point)
@@ -149,16 +159,26 @@ def build_contrast(params: ContrastParams) -> Detector:
             seen, state.seen = state.seen, None
         if seen is not None and seen.shape != mask.shape:
             seen = None
-        found = measure(components, excess, model.noise, halo=params.halo, core=params.core,
-                        max_radius=params.max_radius, split=params.split, frame_width=state.width,
-                        factor=state.factor, lone_k=params.lone_k, seen=seen,
-                        full=(state.grey, state.base), fine=state.frozen is None,
-                        split_budget=int(SPLIT_BUDGET * mask.size))
+
+        def fine() -> Detections:
+            return measure(components, excess, model.noise, halo=params.halo, core=params.core,
+                           max_radius=params.max_radius, split=params.split, frame_width=state.width,
+                           factor=state.factor, lone_k=params.lone_k, seen=seen,
+                           full=(state.grey, state.base), fine=state.frozen is None,
+                           split_budget=int(SPLIT_BUDGET * mask.size))
+
         if params.coarse and state.frozen is None:
             still = model.learnt() and not model.moving() and model.base is not None
-            found = merge_scales(found, coarse_particles(
-                reflectance, model.base if still else None, factor=state.factor, width=state.width, k=params.k,
-                min_contrast=params.min_contrast, core=params.core, halo=params.halo, max_radius=params.max_radius))
+            learnt = model.base if still else None
+
+            def coarse() -> Detections:
+                return coarse_particles(reflectance, learnt, factor=state.factor, width=state.width, k=params.k,
+                                        min_contrast=params.min_contrast, core=params.core, halo=params.halo,
+                                        max_radius=params.max_radius)
+
+            found = merge_scales(*pool.call(fine, coarse))  # the two scales at once with threads > 1
+        else:
+            found = fine()
         state.learn = (reflectance, mask, state.frozen)
         return brightest(found, params.max_particles)
 

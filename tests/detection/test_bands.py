@@ -1,0 +1,159 @@
+"""The default detector on several threads: the bands of the frame give exactly the one-thread detections."""
+
+import cv2
+import numpy as np
+import pytest
+
+from antiscatter.detection import MAX_THREADS, make_detector
+from antiscatter.detection.contrast import ContrastParams
+from antiscatter.detection.contrast.background import ring_level
+from antiscatter.detection.contrast.bands import MIN_ROWS, BandPool, downsample_in_bands
+from antiscatter.detection.contrast.working import downsample
+from antiscatter.simulate import make_scene
+
+from test_contrast import scene
+
+
+def _same(a, b):
+    """Two Detections equal to the last bit, in the same order."""
+    return (np.array_equal(a.centres, b.centres) and np.array_equal(a.radii, b.radii)
+            and np.array_equal(a.scores, b.scores) and a.cut == b.cut)
+
+
+def _run(frames, threads, params=None, light=None):
+    detector = make_detector("contrast", params, threads=threads)
+    found = []
+    for frame in frames:
+        if light is not None:
+            detector.set_light(light)
+        found.append(detector.detect(frame))
+    return found
+
+
+def _check_equal(frames, params=None, light=None):
+    reference = _run(frames, 1, params, light)
+    assert sum(len(f) for f in reference) > 0
+    for threads in (2, 3, 4):
+        for k, (one, many) in enumerate(zip(reference, _run(frames, threads, params, light))):
+            assert _same(one, many), f"{threads} threads, frame {k}: {len(many)} detections, 1 thread {len(one)}"
+
+
+def _seams(rows, threads):
+    """The working-image rows where bands meet for ``rows`` rows on ``threads`` threads."""
+    return [r0 for r0, _ in BandPool(threads).spans(rows)[1:]]
+
+
+@pytest.mark.parametrize("rows,threads", [(544, 2), (544, 4), (300, 3), (33, 4), (64, 4), (5, 2)])
+def test_the_bands_cover_every_row_once_in_order(rows, threads):
+    spans = BandPool(threads).spans(rows)
+    assert spans[0][0] == 0 and spans[-1][1] == rows
+    assert all(a[1] == b[0] for a, b in zip(spans, spans[1:]))
+    assert len(spans) <= threads and (len(spans) == 1 or min(r1 - r0 for r0, r1 in spans) >= MIN_ROWS)
+
+
+@pytest.mark.parametrize("threads", [2, 3, 4])
+def test_a_local_filter_in_bands_equals_it_on_the_whole_image(threads):
+    image = np.random.default_rng(1).integers(0, 256, (301, 203), np.uint8)
+    pool = BandPool(threads)
+    for rings in ((3,), (2, 5, 11)):
+        whole = ring_level(image, rings)
+        banded = pool.filter(lambda rows: ring_level(rows, rings), image, max(rings) + 2, np.empty_like(image))
+        assert np.array_equal(banded, whole)
+    whole = cv2.medianBlur(image, 13)
+    assert np.array_equal(pool.filter(lambda rows: cv2.medianBlur(rows, 13), image, 6, np.empty_like(image)), whole)
+
+
+@pytest.mark.parametrize("channel,point", [("luma", 0.15), ("min", 0.0), ("green", 1.0)])
+def test_the_pooling_in_bands_equals_the_whole_frames(channel, point):
+    frame = np.random.default_rng(2).integers(0, 256, (218, 302, 3), np.uint8)
+    grey, half = downsample_in_bands(frame, BandPool(3), factor=2, channel=channel, point=point)
+    assert np.array_equal(half, downsample(frame, factor=2, channel=channel, point=point))
+    assert np.array_equal(downsample(grey, factor=2, point=point), half)
+    y = frame[..., 1].copy()
+    grey, half = downsample_in_bands(y, BandPool(2), factor=2, channel=channel, point=point)
+    assert grey is y and np.array_equal(half, downsample(y, factor=2, point=point))
+
+
+def test_particles_on_the_band_seams_are_found_once_as_on_one_thread():
+    # 1456x1088: the working image is 728x544; discs centred on every seam of 2, 3 and 4 bands,
+    # of radius 1 to 10 px, and pairs touching across a seam
+    width, height = 1456, 1088
+    rows = {r for threads in (2, 3, 4) for r in _seams(height // 2, threads)}
+    discs = []
+    for i, r in enumerate(sorted(rows)):
+        y = 2 * r  # full-resolution row of the seam
+        for j, radius in enumerate((1.0, 2.0, 4.0, 7.0, 10.0)):
+            discs.append((80.0 + 260 * j + 17 * i, y + (j % 3 - 1) * 0.5, radius, 60 + 25 * j))
+        discs += [(1380.0, y - 4.0, 4.0, 90), (1380.0, y + 4.0, 4.0, 120)]  # touching across it
+    frames = [scene((width, height), discs, background=b, seed=s)
+              for s, b in enumerate(("flat", "gradient", "texture", "texture"))]
+    one = _run(frames, 1)
+    on_seams = [d for d in discs if d[2] >= 2.0 and d[3] >= 60]
+    for found in one:  # the reference finds them, each once
+        near = [np.hypot(*(found.centres - (x, y)).T).min() for x, y, _, _ in on_seams]
+        assert np.max(near) < 3.0
+    _check_equal(frames)
+
+
+def test_a_frame_full_of_particles_is_detected_alike():
+    scene_ = make_scene("dense", rng=np.random.default_rng(5), size=(1456, 1088))
+    frames = []
+    for _ in range(6):
+        frames.append(scene_.render())
+        scene_.step()
+    _check_equal(frames)
+    assert min(len(f) for f in _run(frames[:1], 2)) > 300
+
+
+def test_a_moving_view_and_new_scenes_are_detected_alike_frame_after_frame():
+    # the view pans over textured ground (the frame alone vets the learnt background's candidates),
+    # then cuts to unrelated ground (the model starts again from a single frame)
+    rng = np.random.default_rng(7)
+    ground = (40 + 60 * np.clip(rng.normal(0.5, 0.25, (700, 1100)), 0, 1)).astype(np.uint8)
+    ground = cv2.GaussianBlur(ground, (0, 0), 3)
+    frames = []
+    for k in range(14):
+        x = 20 + 6 * k if k < 10 else 300
+        view = ground[40:640, x:x + 800].copy()
+        for _ in range(40):
+            cx, cy = rng.integers(10, 790), rng.integers(10, 590)
+            cv2.circle(view, (int(cx), int(cy)), int(rng.integers(1, 5)), 220, -1)
+        frames.append(cv2.cvtColor(view, cv2.COLOR_GRAY2BGR))
+    frames[12] = cv2.flip(frames[12], 0)
+    _check_equal(frames)
+    _check_equal(frames[:4], ContrastParams(memory=0))  # single-frame: every frame from itself
+
+
+def test_grey_frames_odd_sizes_and_the_lamps_light_are_detected_alike():
+    grey = [cv2.cvtColor(scene((801, 601), [(400.0, 300.0, 3.0, 90), (100.0, 151.0, 5.0, 60)], seed=s),
+                         cv2.COLOR_BGR2GRAY) for s in range(4)]
+    _check_equal(grey)  # not whole 2x2 blocks: pooled whole, the rest in bands
+    frames = [scene((800, 600), [(400.0, 300.0, 3.0, 90), (600.0, 301.0, 5.0, 60)], seed=s) for s in range(4)]
+    light = np.ones((600, 800), np.float32)
+    light[250:350, 100:200] = 0.3
+    _check_equal(frames, light=light)
+
+
+@pytest.mark.parametrize("threads", [0, -1, MAX_THREADS + 1, 2.0, True])
+def test_a_bad_number_of_threads_is_refused(threads):
+    with pytest.raises(ValueError) as err:
+        BandPool(threads)
+    assert str(err.value) == (f"threads: got {threads!r}, allowed 1..{MAX_THREADS} ({MAX_THREADS // 4} CPUs here, "
+                              "four threads each)")
+    with pytest.raises(ValueError, match="threads: got"):
+        make_detector("contrast", threads=threads)
+
+
+def test_a_detector_without_bands_runs_on_one_thread_whatever_is_asked():
+    frame = scene((320, 240), [(100.0, 100.0, 3.0, 90)])
+    assert _same(make_detector("seed", threads=4).detect(frame), make_detector("seed").detect(frame))
+
+
+def test_an_error_in_a_band_is_raised_in_the_caller():
+    def fail(rows):
+        if rows.shape[0] < 300:
+            raise RuntimeError("band failed")
+        return rows
+
+    with pytest.raises(RuntimeError, match="band failed"):
+        BandPool(3).filter(fail, np.zeros((300, 10), np.uint8), 2, np.empty((300, 10), np.uint8))
