@@ -189,6 +189,8 @@ def bench(*, detectors: list[str] | None = None, frames: int = 200, threads: int
         are the one pool instead, so speed is measured on the frames that matter.
     input: "bgr" (video files, the simulator, webcams) or "y" (the luma plane alone, as the
         Pi camera's YUV420 stream delivers it; computed before timing).
+    threads: threads detection runs on, as ``run --threads``: a threaded detector's bands and
+        OpenCV's own functions (default 1, as one Pi core).
     """
     if input not in ("bgr", "y"):
         raise ValueError(f"input: got {input!r}, allowed bgr or y")
@@ -206,7 +208,8 @@ def bench(*, detectors: list[str] | None = None, frames: int = 200, threads: int
                 pool = [cv2.cvtColor(f, cv2.COLOR_BGR2GRAY) if f.ndim == 3 else f for f in pool]
             else:
                 pool = [cv2.cvtColor(f, cv2.COLOR_GRAY2BGR) if f.ndim == 2 else f for f in pool]
-            results.append(_bench_pool({name: make_detector(name) for name in names}, pool, title, frames))
+            results.append(_bench_pool({name: make_detector(name, threads=threads) for name in names}, pool, title,
+                                       frames))
     finally:
         cv2.setNumThreads(previous)
     return BenchResult(machine_description(), threads, frames, results, input)
