@@ -5,9 +5,11 @@ import numpy as np
 import pytest
 
 from antiscatter.detection import MAX_THREADS, make_detector
-from antiscatter.detection.contrast import ContrastParams
+from antiscatter.detection.contrast import ContrastParams, label, measure
 from antiscatter.detection.contrast.background import ring_level
 from antiscatter.detection.contrast.bands import MIN_ROWS, BandPool, downsample_in_bands
+from antiscatter.detection.contrast.components import measure_in_bands
+from antiscatter.detection.contrast.split import split_images
 from antiscatter.detection.contrast.working import downsample
 from antiscatter.simulate import make_scene
 
@@ -61,6 +63,40 @@ def test_a_local_filter_in_bands_equals_it_on_the_whole_image(threads):
         assert np.array_equal(banded, whole)
     whole = cv2.medianBlur(image, 13)
     assert np.array_equal(pool.filter(lambda rows: cv2.medianBlur(rows, 13), image, 6, np.empty_like(image)), whole)
+
+
+@pytest.mark.parametrize("fine", [True, False])
+def test_the_splits_images_in_bands_equal_the_whole_frames(fine):
+    excess = np.random.default_rng(3).integers(0, 256, (277, 190), np.uint8)
+    whole = split_images(excess, fine)
+    for got, want in zip(split_images(excess, fine, BandPool(4)), whole):
+        assert (got is None and want is None) or (got.dtype == want.dtype and np.array_equal(got, want))
+
+
+def _clusters(seed):
+    """(components, excess, noise) of a frame of touching and lone discs, many split, working pixels."""
+    rng = np.random.default_rng(seed)
+    excess = np.zeros((300, 400), np.float32)
+    for _ in range(140):
+        x, y = rng.uniform(5, [395, 295])
+        for dx in (0.0, rng.uniform(2.5, 6.0)) if rng.random() < 0.5 else (0.0,):
+            cv2.circle(excess, (int((x + dx) * 16), int(y * 16)), int(rng.uniform(1, 4) * 16),
+                       float(rng.uniform(30, 250)), -1, cv2.LINE_AA, 4)
+    excess = cv2.GaussianBlur(excess, (0, 0), 0.8).astype(np.uint8)
+    mask = cv2.compare(excess, 12, cv2.CMP_GT)
+    return label(mask), excess, np.full((19, 25), 2.0, np.float32)
+
+
+@pytest.mark.parametrize("budget", [0, 3000])
+def test_components_measured_in_bands_give_measures_detections_in_its_order(budget):
+    components, excess, noise = _clusters(4)
+    settings = dict(halo=1.0, core=0.5, max_radius=48.0, split=True, frame_width=800, factor=2, lone_k=5.0,
+                    split_budget=budget)
+    want = measure(components, excess, noise, **settings)
+    assert len(want) > components["count"] > 100  # the split made more particles than components
+    assert (want.cut > 0) == (budget > 0)  # a small budget leaves some whole: the frame measured whole again
+    for threads in (2, 3, 4):
+        assert _same(measure_in_bands(components, excess, noise, BandPool(threads), **settings), want)
 
 
 @pytest.mark.parametrize("channel,point", [("luma", 0.15), ("min", 0.0), ("green", 1.0)])

@@ -12,7 +12,7 @@ and the memory is what one thread makes of it.  Measured history: docs/decisions
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
-from typing import Callable, TypeVar
+from typing import Any, Callable, TypeVar
 
 import numpy as np
 
@@ -74,10 +74,11 @@ class BandPool:
             future.exception()
         return done, future.result()
 
-    def filter(self, fn: Callable[[np.ndarray], np.ndarray], image: np.ndarray, halo: int, out: np.ndarray, *,
-               scale: int = 1) -> np.ndarray:
+    def filter(self, fn: Callable[[np.ndarray], Any], image: np.ndarray, halo: int, out: Any, *,
+               scale: int = 1) -> Any:
         """``fn(image)`` computed in bands into ``out``: each band hands ``fn`` its rows and ``halo``
-        more rows of ``image`` on either side, and keeps the output rows of its own.
+        more rows of ``image`` on either side, and keeps the output rows of its own.  ``fn`` may
+        give a tuple of images, ``out`` then a tuple of as many buffers (None: that image not kept).
 
         fn: a local filter, rows of ``image`` -> rows of output (``scale`` input rows to an output
             row) whose output row depends only on the input rows within ``halo`` of it: then the
@@ -88,12 +89,16 @@ class BandPool:
         out: the output, ``image.shape[0] // scale`` rows of what ``fn`` gives.
         Returns ``out``.
         """
-        rows = out.shape[0]
+        outs = out if isinstance(out, tuple) else (out,)
+        rows = next(o for o in outs if o is not None).shape[0]
         h = -(-halo // scale)
 
         def work(r0: int, r1: int) -> None:
             a, b = max(r0 - h, 0), min(r1 + h, rows)
-            out[r0:r1] = fn(image[a * scale: b * scale])[r0 - a: r1 - a]
+            got = fn(image[a * scale: b * scale])
+            for buffer, part in zip(outs, got if isinstance(out, tuple) else (got,)):
+                if buffer is not None:
+                    buffer[r0:r1] = part[r0 - a: r1 - a]
 
         self.run(work, self.spans(rows))
         return out

@@ -16,7 +16,7 @@ from ...detections import Detections
 from .. import Detector, Stage
 from .bands import BandPool, downsample_in_bands
 from .background import NOISE_WINDOW, _near, _rings, prominent_only, threshold_mask
-from .components import brightest, label, measure
+from .components import brightest, label, measure_in_bands
 from .kernels import _disc
 from .model import BackgroundModel
 from .params import ContrastParams
@@ -160,12 +160,12 @@ def build_contrast(params: ContrastParams, *, threads: int = 1) -> Detector:
         if seen is not None and seen.shape != mask.shape:
             seen = None
 
-        def fine() -> Detections:
-            return measure(components, excess, model.noise, halo=params.halo, core=params.core,
-                           max_radius=params.max_radius, split=params.split, frame_width=state.width,
-                           factor=state.factor, lone_k=params.lone_k, seen=seen,
-                           full=(state.grey, state.base), fine=state.frozen is None,
-                           split_budget=int(SPLIT_BUDGET * mask.size))
+        def fine() -> Detections:  # in bands of components with threads > 1 (measure itself with one)
+            return measure_in_bands(components, excess, model.noise, pool, halo=params.halo, core=params.core,
+                                    max_radius=params.max_radius, split=params.split, frame_width=state.width,
+                                    factor=state.factor, lone_k=params.lone_k, seen=seen,
+                                    full=(state.grey, state.base), fine=state.frozen is None,
+                                    split_budget=int(SPLIT_BUDGET * mask.size))
 
         if params.coarse and state.frozen is None:
             still = model.learnt() and not model.moving() and model.base is not None
