@@ -6,7 +6,7 @@ import pytest
 
 from antiscatter.detection import MAX_THREADS, make_detector
 from antiscatter.detection.contrast import ContrastParams, label, measure
-from antiscatter.detection.contrast.background import ring_level
+from antiscatter.detection.contrast.background import prominent_only, ring_level
 from antiscatter.detection.contrast.bands import MIN_ROWS, BandPool, downsample_in_bands
 from antiscatter.detection.contrast.components import measure_in_bands
 from antiscatter.detection.contrast.split import split_images
@@ -63,6 +63,9 @@ def test_a_local_filter_in_bands_equals_it_on_the_whole_image(threads):
         assert np.array_equal(banded, whole)
     whole = cv2.medianBlur(image, 13)
     assert np.array_equal(pool.filter(lambda rows: cv2.medianBlur(rows, 13), image, 6, np.empty_like(image)), whole)
+    mask = cv2.compare(image, 200, cv2.CMP_GT)
+    prominent = cv2.compare(image, 250, cv2.CMP_GT)
+    assert np.array_equal(prominent_only(mask, prominent, 7, pool), prominent_only(mask, prominent, 7))
 
 
 @pytest.mark.parametrize("fine", [True, False])

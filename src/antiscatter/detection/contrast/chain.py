@@ -132,7 +132,7 @@ def build_contrast(params: ContrastParams, *, threads: int = 1) -> Detector:
         if prominent is not None:
             # a single frame's candidates cut to what stands out; the model learns from the cut mask,
             # so the texture the cut left out is learnt as background from this frame on
-            mask = prominent_only(mask, prominent, max(model.rings[-1] // 2, 1))
+            mask = prominent_only(mask, prominent, max(model.rings[-1] // 2, 1), model.pool)
         elif MOVING_SCALE and state.frozen is None and model.rings and (model.moving() or model.young()):
             # while the view moves the learnt background is resampled and lags, and in its first
             # frames it still holds much of the spatial start: a candidate must also stand out in
