@@ -11,6 +11,10 @@ work threading adds, which the load does not hide), the per-stage medians, and t
 shared machine the ratios are depressed by the other jobs).  Detections are checked equal to the
 reference's on every frame.
 
+``--share``: instead, the share of a frame's time (one thread) that threads can take on -- the
+bands' work and the coarse scale beside the fine measure, run one after the other and timed --
+and what that bounds N threads' throughput to (Amdahl); the machine's load hardly moves it.
+
     python scripts/bench_threads.py /tmp/h/test/pan-1456 sim:1456x1088:fullres --threads 2
     (material: antiscatter evaluate --heldout test --heldout-frames 12 --heldout-export /tmp/h)
 """
@@ -46,8 +50,12 @@ def main() -> None:
     parser.add_argument("--distinct", type=at_least_one, default=12)
     parser.add_argument("--input", choices=("bgr", "y"), default="bgr")
     parser.add_argument("--variants", default="1,cv,bands,both", help="of 1, cv, bands, both")
+    parser.add_argument("--share", action="store_true", help="the parallel share of a frame's time instead")
     args = parser.parse_args()
     n = args.threads
+    if args.share:
+        share(args)
+        return
     wanted = args.variants.split(",")
     print(f"machine: {machine_description()}")
     for spec in args.sources:
@@ -102,6 +110,47 @@ def main() -> None:
                   f"{np.median(cpu[k]) / 1e6:8.2f}   "
                   + " ".join(f"{s}={v:.2f}" for s, v in zip(stage_names, per)))
     cv2.setNumThreads(1)
+
+
+def share(args: argparse.Namespace) -> None:
+    """Per source: a frame's median time on one thread with the pool's work run in the caller and
+    timed, that work's share, and the throughput it bounds 2 and 4 threads to."""
+    from antiscatter.detection.contrast.bands import BandPool
+
+    spent = [0]
+
+    def run(self, work, spans):  # the bands one after the other, timed
+        t0 = time.perf_counter_ns()
+        for r0, r1 in spans:
+            work(r0, r1)
+        spent[0] += time.perf_counter_ns() - t0
+
+    def call(self, first, second):  # the second task (the coarse scale) is what runs beside the first
+        done = first()
+        t0 = time.perf_counter_ns()
+        other = second()
+        spent[0] += time.perf_counter_ns() - t0
+        return done, other
+
+    BandPool.run, BandPool.call = run, call
+    cv2.setNumThreads(1)
+    print(f"machine: {machine_description()}")
+    print(f"{'source':<40}{'ms/frame':>9}{'share':>7}{'2 threads':>11}{'4 threads':>11}   load")
+    for spec in args.sources:
+        pool = _pool(spec, args.distinct)
+        if args.input == "y":
+            pool = [cv2.cvtColor(f, cv2.COLOR_BGR2GRAY) if f.ndim == 3 else f for f in pool]
+        detector = make_detector("contrast", threads=2)
+        for image in pool:
+            detector.detect(image)
+        spent[0], total = 0, []
+        for i in range(args.frames):
+            t0 = time.perf_counter_ns()
+            detector.detect(pool[pool_index(len(pool) + i, len(pool))])
+            total.append(time.perf_counter_ns() - t0)
+        p = spent[0] / sum(total)
+        print(f"{spec:<40}{np.median(total) / 1e6:9.2f}{p:7.2f}{1 / (1 - p / 2):10.2f}x{1 / (1 - 3 * p / 4):10.2f}x"
+              f"   {os.getloadavg()[0]:.1f}")
 
 
 if __name__ == "__main__":

@@ -163,6 +163,26 @@ def test_a_moving_view_and_new_scenes_are_detected_alike_frame_after_frame():
     _check_equal(frames[:4], ContrastParams(memory=0))  # single-frame: every frame from itself
 
 
+def test_the_background_learnt_on_two_threads_is_one_threads_to_the_last_bit():
+    rng = np.random.default_rng(8)
+    ground = cv2.GaussianBlur((40 + 60 * rng.random((640, 900))).astype(np.uint8), (0, 0), 3)
+    models = []
+    detectors = [make_detector("contrast", threads=t) for t in (1, 2)]
+    for detector in detectors:
+        models.append(detector.reset.__self__)  # the BackgroundModel the detector's stages share
+    for k in range(20):  # still, then panning
+        x = 10 if k < 10 else 10 + 5 * (k - 10)
+        view = ground[20:620, x:x + 800].copy()
+        for cx, cy in rng.integers(10, [790, 590], (30, 2)):
+            cv2.circle(view, (int(cx), int(cy)), 2, 200, -1)
+        for detector in detectors:
+            detector.detect(view)
+        one, two = models
+        for name in ("background", "base", "limit", "noise", "_previous", "_persist", "_deficit"):
+            assert np.array_equal(getattr(one, name), getattr(two, name)), (k, name)
+        assert (one._frames, one._moved_ago, one._next) == (two._frames, two._moved_ago, two._next)
+
+
 def test_grey_frames_odd_sizes_and_the_lamps_light_are_detected_alike():
     grey = [cv2.cvtColor(scene((801, 601), [(400.0, 300.0, 3.0, 90), (100.0, 151.0, 5.0, 60)], seed=s),
                          cv2.COLOR_BGR2GRAY) for s in range(4)]
