@@ -1,12 +1,14 @@
-"""Horizontal bands of the working image on a pool of threads: :class:`BandPool`.
+"""Horizontal bands of the frame on a pool of threads: :class:`BandPool`.
 
 The chain's costly frame-wide filters (the pooling to the working image, the rings a single
-frame's particles must outshine, the texture median) are local: an output row depends on the
-input rows within the filter's reach.  Cut into bands that each read ``halo`` rows beyond their
-own, they give exactly the whole frame's result, and OpenCV releases the GIL while it filters, so
-the bands run at once on several cores.  Labelling and measuring stay whole-frame, on the calling
-thread, as does everything the detector learns across frames: a particle on a seam is found once
-and the memory is what one thread makes of it.  Measured history: docs/decisions/008-threads.md.
+frame's particles must outshine, its texture median and its cut to prominent spots, the split's
+smoothing) are local: an output row depends on the input rows within the filter's reach.  Cut
+into bands that each read ``halo`` rows beyond their own, they give exactly the whole frame's
+result, and OpenCV releases the GIL while it filters, so the bands run at once on several cores.
+The candidates are labelled once, whole; their components are measured in bands of labels
+(:func:`~.components.measure_in_bands`), each whole component in one band, so a particle on a
+seam is found once; everything the detector learns across frames stays in the calling thread.
+Measured history: docs/decisions/008-threads.md.
 """
 
 from __future__ import annotations
@@ -38,17 +40,17 @@ class BandPool:
         self._workers = (ThreadPoolExecutor(threads - 1, thread_name_prefix="antiscatter-band")
                          if threads > 1 else None)
 
-    def spans(self, rows: int, step: int = 1) -> list[tuple[int, int]]:
+    def spans(self, rows: int) -> list[tuple[int, int]]:
         """[r0, r1) row ranges of at most ``threads`` bands of ``rows`` rows, about equal, each at
-        least ``MIN_ROWS`` rows unless there is one band, their edges multiples of ``step``."""
-        units = -(-rows // step)
-        count = max(1, min(self.threads, (rows // MIN_ROWS) or 1, units))
-        edges = [min(rows, (units * i // count) * step) for i in range(count + 1)]
-        return [(edges[i], edges[i + 1]) for i in range(count) if edges[i + 1] > edges[i]]
+        least ``MIN_ROWS`` rows unless there is one band."""
+        count = max(1, min(self.threads, rows // MIN_ROWS))
+        edges = [rows * i // count for i in range(count + 1)]
+        return [(edges[i], edges[i + 1]) for i in range(count)]
 
     def run(self, work: Callable[[int, int], None], spans: list[tuple[int, int]]) -> None:
-        """``work(r0, r1)`` for every span, the first in the caller's thread and the others on the
-        workers at the same time; returns when all are done (the first error raised again)."""
+        """``work(a, b)`` for every span (rows, or the labels of :func:`~.components.measure_in_bands`),
+        the first in the caller's thread and the others on the workers at the same time; returns
+        when all are done (the first error raised again)."""
         if self._workers is None or len(spans) == 1:
             for r0, r1 in spans:
                 work(r0, r1)
@@ -74,28 +76,25 @@ class BandPool:
             future.exception()
         return done, future.result()
 
-    def filter(self, fn: Callable[[np.ndarray], Any], image: np.ndarray, halo: int, out: Any, *,
-               scale: int = 1) -> Any:
+    def filter(self, fn: Callable[[np.ndarray], Any], image: np.ndarray, halo: int, out: Any) -> Any:
         """``fn(image)`` computed in bands into ``out``: each band hands ``fn`` its rows and ``halo``
         more rows of ``image`` on either side, and keeps the output rows of its own.  ``fn`` may
         give a tuple of images, ``out`` then a tuple of as many buffers (None: that image not kept).
 
-        fn: a local filter, rows of ``image`` -> rows of output (``scale`` input rows to an output
-            row) whose output row depends only on the input rows within ``halo`` of it: then the
-            result equals ``fn(image)`` exactly, band seams included.  At the image's top and
-            bottom a band stops where the image does, so ``fn``'s own border rule applies there as
-            on the whole image.
-        halo: input rows, a multiple of ``scale``.
-        out: the output, ``image.shape[0] // scale`` rows of what ``fn`` gives.
+        fn: a local filter, rows of ``image`` -> as many rows of output, whose output row depends
+            only on the input rows within ``halo`` of it: then the result equals ``fn(image)``
+            exactly, band seams included.  At the image's top and bottom a band stops where the
+            image does, so ``fn``'s own border rule applies there as on the whole image.
+        halo: rows.
+        out: the output buffer(s), as many rows as ``image``.
         Returns ``out``.
         """
         outs = out if isinstance(out, tuple) else (out,)
-        rows = next(o for o in outs if o is not None).shape[0]
-        h = -(-halo // scale)
+        rows = image.shape[0]
 
         def work(r0: int, r1: int) -> None:
-            a, b = max(r0 - h, 0), min(r1 + h, rows)
-            got = fn(image[a * scale: b * scale])
+            a, b = max(r0 - halo, 0), min(r1 + halo, rows)
+            got = fn(image[a:b])
             for buffer, part in zip(outs, got if isinstance(out, tuple) else (got,)):
                 if buffer is not None:
                     buffer[r0:r1] = part[r0 - a: r1 - a]

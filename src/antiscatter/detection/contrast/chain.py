@@ -71,9 +71,9 @@ class ChainState:
 def build_contrast(params: ContrastParams, *, threads: int = 1) -> Detector:
     """The ``contrast`` chain as timed stages (one background model per detector instance).
 
-    threads: threads the frame-wide filters (pooling, a single frame's rings and texture median)
-    run on, in bands of the frame (:class:`~.bands.BandPool`; default 1); the detections and what
-    the model learns are the same on any number."""
+    threads: threads the frame-wide filters run on in bands of rows, and the components are
+    measured on in bands of labels beside the coarse scale (:class:`~.bands.BandPool`; default 1);
+    the detections and what the model learns are the same on any number."""
     pool = BandPool(threads)
     model = BackgroundModel(cell=params.cell, memory=params.memory, k=params.k, min_contrast=params.min_contrast,
                             follow=params.follow, defer_looks=True, pool=pool if threads > 1 else None)
