@@ -5,6 +5,8 @@ mixin :class:`~antiscatter.detection.contrast.follow.ViewFollowing`.
 
 from __future__ import annotations
 
+from typing import Callable
+
 import cv2
 import numpy as np
 
@@ -151,8 +153,7 @@ class BackgroundModel(ViewFollowing):
             self._deficit = np.zeros((max(h // self.cell, 3), max(w // self.cell, 3)), np.float32)
             self.background = spatial_background(half, cell=self.cell, window=self.window, pool=self.pool)
             self.base = cv2.convertScaleAbs(self.background)  # rounded, saturated uint8 (background >= 0)
-            for band in range(self.bands):
-                self._measure_noise(half, band)
+            self._each_band(lambda band: self._measure_noise(half, band))
             self._update_limit(half.shape)
             self._previous = self._persist = None
             self._profiles = None
@@ -292,9 +293,9 @@ class BackgroundModel(ViewFollowing):
             # the cap (LEARN_REACH): not while the view moves (a moved background is off both ways)
             # nor under the lamp's pattern
             capped = not (first or moving) and frozen is None
-            for band in range(self.bands):
-                self._learn_band(half, mask, band, first, per_update=1, needed=max(2, self.PERSIST // 2),
-                                 under=self.UNDER_WARM, frozen=frozen, capped=capped)
+            self._each_band(lambda band: self._learn_band(half, mask, band, first, per_update=1,
+                                                          needed=max(2, self.PERSIST // 2), under=self.UNDER_WARM,
+                                                          frozen=frozen, capped=capped))
             self._next = 0
             self._update_limit(half.shape)
             return
@@ -305,6 +306,22 @@ class BackgroundModel(ViewFollowing):
                          alpha=max(self.alpha, 1.0 / self.MOVING_MEMORY) if moving else self.alpha)
         if self._next == 0:  # a whole cycle of bands: the noise map has been renewed
             self._update_limit(half.shape)
+
+    def _each_band(self, work: Callable[[int], None]) -> None:
+        """``work(band)`` for every band; on the pool's threads at once when there is one (the bands
+        read and write rows and cells of their own)."""
+        if self.pool is None or self.pool.threads == 1:
+            for band in range(self.bands):
+                work(band)
+            return
+        count = min(self.pool.threads, self.bands)
+        edges = [self.bands * i // count for i in range(count + 1)]
+
+        def some(a: int, b: int) -> None:
+            for band in range(a, b):
+                work(band)
+
+        self.pool.run(some, list(zip(edges[:-1], edges[1:])))
 
     def _learn_band(self, half: np.ndarray, mask: np.ndarray, band: int, first: bool, *, per_update: int,
                     needed: int, under: float, frozen: np.ndarray | None = None,
