@@ -107,7 +107,8 @@ def _measure(components: Components, excess: np.ndarray, noise: np.ndarray, *,
     if split:
         unsplit = lab
         lab, n, cut, work = _split_peaks(lab, x, y, weight, excess, noise, n, full=full if factor == 2 else None,
-                                   fine=fine, area=area, peak=peak, flat=flat, budget=split_budget, images=images)
+                                         fine=fine, area=area, peak=peak, flat=flat, budget=split_budget,
+                                         images=images)
         if lab is not unsplit:
             area = np.bincount(lab, minlength=n)
             (peak,) = _group_max(lab, n, weight)
