@@ -341,7 +341,8 @@ def format_modes(results: list[dict[str, Any]]) -> str:
 
 def format_bench(result: BenchResult) -> str:
     """The report's table 1 layout per size: stage mean and sd, plus median, p99 and max (us)."""
-    lines = [f"machine: {result.machine}", f"OpenCV threads: {result.threads}; {result.frames} frames per size, "
+    lines = [f"machine: {result.machine}",
+             f"threads: {result.threads} (the detectors' bands and OpenCV's); {result.frames} frames per size, "
              f"detectors interleaved; input {'BGR frames' if result.input == 'bgr' else 'the Y (luma) plane'}"]
     for entry in result.sizes:
         floor = entry["copy_floor_us"]["median_us"]
@@ -388,7 +389,7 @@ def plot_bench(result: BenchResult, path: str) -> None:
         ax.set_xlabel("microseconds per frame (log)")
         ax.set_title(f"{entry['size']} ({entry['preset']})")
         ax.legend(fontsize=8)
-    fig.suptitle(f"antiscatter bench: {result.threads} OpenCV thread(s), {result.frames} frames")
+    fig.suptitle(f"antiscatter bench: {result.threads} thread(s), {result.frames} frames")
     fig.tight_layout()
     save_figure(fig, path)
     plt.close(fig)
