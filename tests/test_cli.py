@@ -579,8 +579,8 @@ def test_compensation_tells_the_detector_the_light_of_the_last_pattern(tmp_path,
     seen = []
     real = runtime.make_detector
 
-    def recording(name, params=None):
-        detector = real(name, params)
+    def recording(name, params=None, *, threads=1):
+        detector = real(name, params, threads=threads)
         return dataclasses.replace(detector, set_light=lambda light: (seen.append(None if light is None else light.copy()),
                                                                      detector.set_light(light)))
 
