@@ -31,6 +31,7 @@ def fx(tmp_path_factory) -> Path:
     d = tmp_path_factory.mktemp("fx")
     (d / "latin1.toml").write_bytes(b"[run]\n# caf\xe9\nframes = 3\n")
     (d / "ten.toml").write_text('[run]\nframes = "ten"\n')
+    (d / "threads.toml").write_text("[run]\nthreads = 0\n")
     (d / "seed.toml").write_text('[detector]\nname = "seed"\n[detector.seed]\nthreshold = "high"\n')
     (d / "latin1.csv").write_bytes(b"frame,x,y,radius\n0,1,2,3 # caf\xe9\n")
     (d / "truth.csv").write_text("frame,x,y,radius\n0,10,10,3\n1,20,20,3\n")
@@ -88,6 +89,12 @@ ROWS = {
                                     f"--projector-size {HUGE}: too large, allowed each side 1..16384", ("c.json",)),
     "bench threads 100000": Row(["bench", "--threads", "100000", "--frames", "1", "--sizes", "64x48"], 2,
                                 "--threads 100000: allowed 1.."),
+    "run threads 0": Row(["run", "--threads", "0", "--frames", "1", "--output", "none", "--detections", "d.csv"], 2,
+                         "--threads 0: allowed 1..", ("d.csv",)),
+    "run threads 100000": Row(["run", "--threads", "100000", "--frames", "1", "--output", "none"], 2,
+                              "--threads 100000: allowed 1.."),
+    "run config threads 0": Row(["run", "--config", "{fx}/threads.toml", "--frames", "1", "--output", "none"], 2,
+                                "threads.toml: run.threads: got 0, allowed 1.."),
     # tiny sizes: one minimum for every command
     "record 1x1": Row(["record", "r.mkv", "--size", "1x1", "--frames", "1"], 2,
                       "source sim: frames of 1x1 px: too small, allowed at least 8x8", ("r.mkv",)),

@@ -79,3 +79,29 @@ def test_bench_refuses_a_source_with_sizes_and_a_source_without_frames(tmp_path)
     assert result.code == 2 and "goes without --sizes" in result.err
     result = run_cli("bench", str(empty), "--frames", "2")
     assert result.code == 2 and "Traceback" not in result.err and str(empty) in result.err
+
+
+def test_bench_on_threads_times_the_threaded_detector_and_finds_what_one_thread_finds(monkeypatch):
+    from conftest import run_cli
+
+    import antiscatter.bench as bench_module
+
+    asked = []
+    real = bench_module.make_detector
+
+    def spy(name, params=None, *, threads=1):
+        asked.append((name, threads))
+        return real(name, params, threads=threads)
+
+    monkeypatch.setattr(bench_module, "make_detector", spy)
+    counts = {}
+    for threads in ("1", "2"):
+        result = run_cli("bench", "--sizes", "800x600", "--frames", "4", "--distinct", "3", "--threads", threads,
+                         "--detectors", "contrast", "--json")
+        assert result.code == 0, result.err
+        import json
+
+        report = json.loads(result.out)
+        assert report["opencv_threads"] == int(threads)
+        counts[threads] = report["sizes"][0]["detectors"]["contrast"]["particles_per_frame"]
+    assert asked == [("contrast", 1), ("contrast", 2)] and counts["2"] == counts["1"] > 0

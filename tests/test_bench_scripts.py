@@ -50,3 +50,12 @@ def test_the_a_b_script_times_an_earlier_commits_detector_beside_this_trees():
     assert [line.split()[0] for line in lines] == ["800", "1456"]
     for line in lines:
         assert float(line.rsplit(" ", 1)[1]) > 0
+
+
+def test_the_threads_benchmark_compares_every_variant_with_one_thread_on_the_same_frames():
+    out = subprocess.run([sys.executable, str(SCRIPTS / "bench_threads.py"), "sim:320x240:mixed", "--frames", "4",
+                          "--distinct", "3"], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    rows = {line.split()[0]: line.split() for line in out.stdout.splitlines() if line[:2] in ("1 ", "cv", "ba", "bo")}
+    assert set(rows) == {"1", "cv2", "bands2", "both2"} and rows["1"][4] == "1.00"
+    assert "load average before" in out.stdout

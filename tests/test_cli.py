@@ -42,6 +42,19 @@ def test_run_on_the_builtin_simulator(tmp_path):
     assert "Connected Components" in result.stdout and "mean (us)" in result.stdout
 
 
+@pytest.mark.parametrize("mode", ["single", "processes"])
+def test_run_on_two_threads_writes_the_detections_of_one(tmp_path, cli, mode):
+    # the simulator at 1456x1088, tracked: the detector's bands, its memory and the tracker's ids alike
+    files = {}
+    for threads in ("1", "2"):
+        files[threads] = tmp_path / f"d{threads}.csv"
+        result = cli("run", "sim", "--preset", "fullres", "--frames", "8", "--output", "none", "--track",
+                     "--mode", mode, "--threads", threads, "--detections", str(files[threads]))
+        assert result.code == 0, result.err
+    rows = files["1"].read_text()
+    assert rows.count("\n") > 8 * 100 and files["2"].read_text() == rows
+
+
 def test_run_on_a_frame_folder_finds_the_drawn_particles(tmp_path, cli):
     frames = tmp_path / "frames"
     frames.mkdir()
@@ -566,8 +579,8 @@ def test_compensation_tells_the_detector_the_light_of_the_last_pattern(tmp_path,
     seen = []
     real = runtime.make_detector
 
-    def recording(name, params=None):
-        detector = real(name, params)
+    def recording(name, params=None, *, threads=1):
+        detector = real(name, params, threads=threads)
         return dataclasses.replace(detector, set_light=lambda light: (seen.append(None if light is None else light.copy()),
                                                                      detector.set_light(light)))
 

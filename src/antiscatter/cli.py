@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import math
-import os
 import signal
 import sys
 from typing import Any, Sequence
@@ -22,8 +21,6 @@ DEFAULT_DETECTOR = "contrast"
 #: ``run``'s exit code when the source ended before its declared end (a video cut short): the
 #: frames read were used and every file is complete, but the input was damaged.
 EXIT_DAMAGED = 3
-#: The most OpenCV threads ``bench --threads`` takes: four per CPU; more only measure contention.
-MAX_THREADS = 4 * (os.cpu_count() or 1)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -155,6 +152,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--rt-priority", type=int, metavar="N", help="real-time SCHED_FIFO priority 1..99 "
                    "(a warning without permission)")
     g.add_argument("--cpus", metavar="2,3", help="CPU affinity")
+    g.add_argument("--threads", type=int, metavar="N", help="threads detection runs on, 1 to four per CPU "
+                   "(default 1): the default detector's frame-wide filters in bands of the frame, and "
+                   "OpenCV's own; the same detections on any number")
     g.add_argument("--mlock", action="store_true", default=None, help="lock memory (mlockall)")
     g.add_argument("--web", metavar="[HOST:]PORT", help="serve the control panel (live views, figures, buttons "
                    "Light / Record / Stop) on this port; 127.0.0.1 unless a host is given")
@@ -762,13 +762,11 @@ def _bench(args: argparse.Namespace) -> int:
     import json
 
     from .bench import bench, format_bench, plot_bench
-    from .detection import DETECTORS, detector_entry
+    from .detection import DETECTORS, check_threads, detector_entry
 
     if args.frames <= 0:
         raise UsageError(f"--frames {args.frames}: allowed a positive number")
-    if not 1 <= args.threads <= MAX_THREADS:
-        raise UsageError(f"--threads {args.threads}: allowed 1..{MAX_THREADS} ({MAX_THREADS // 4} CPUs here, "
-                         "four threads each)")
+    check_threads(args.threads, f"--threads {args.threads}", error=UsageError)
     if args.vehicle and not args.modes:
         raise UsageError("--vehicle: goes with --modes (the per-stage bench times the detectors alone)")
     if not 2 <= args.distinct <= 1000:
@@ -1153,7 +1151,10 @@ def _simulate(args: argparse.Namespace) -> int:
 
 def _run_config(args: argparse.Namespace):
     from .config import load_config, parse_param
-    from .detection import DETECTORS
+    from .detection import DETECTORS, check_threads
+
+    if args.threads is not None:
+        check_threads(args.threads, f"--threads {args.threads}", error=UsageError)
 
     overrides: dict[str, dict[str, Any]] = {
         "source": {"spec": args.source, "crop": args.crop, "loop": args.loop, "preset": args.preset,
@@ -1172,7 +1173,7 @@ def _run_config(args: argparse.Namespace):
                 "metrics": args.metrics, "detections": args.detections, "mode": args.mode,
                 "rt_priority": args.rt_priority, "cpus": args.cpus, "mlock": args.mlock,
                 "web": args.web, "record_to": args.record_to,
-                "mcap": args.mcap},
+                "mcap": args.mcap, "threads": args.threads},
     }
     if args.projector_size:
         w, h = _size_arg(args.projector_size, "--projector-size")

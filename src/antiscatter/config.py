@@ -440,6 +440,10 @@ class RunConfig:
         timestamped file in the current folder).
     mcap: path of an MCAP file of ROS 2 messages (frames, detections, pattern, metrics per frame;
         :mod:`antiscatter.mcap_out`), empty for none.
+    threads: threads detection runs on, 1 to four per CPU (default 1: one core's worth, as the
+        light loop's budget is counted): the detector's frame-wide filters in bands of the frame
+        and OpenCV's own functions; the detections are the same on any number
+        (docs/decisions/008-threads.md).
     """
 
     frames: int = 0
@@ -454,8 +458,12 @@ class RunConfig:
     web: str = ""
     record_to: str = ""
     mcap: str = ""
+    threads: int = 1
 
     def __post_init__(self) -> None:
+        from .detection import check_threads
+
+        check_threads(self.threads)
         if self.mode not in ("single", "threads", "processes", "processes-pickle"):
             raise ValueError(f"mode: got {self.mode!r}, allowed single, threads, processes, processes-pickle")
         if self.rt_priority is not None and not 1 <= self.rt_priority <= 99:

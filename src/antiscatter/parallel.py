@@ -127,11 +127,12 @@ def _die_with_parent(parent: int, *, signal_it: bool) -> bool:
 
 
 def _worker(detector_name: str, params: Any, ring_spec: tuple | None, requests: Any, replies: Any,
-            parent: int = 0, signal_it: bool = False) -> None:
+            parent: int = 0, signal_it: bool = False, threads: int = 1) -> None:
     """The detector process: read a frame (from the ring or the message), detect, reply.
 
     ``parent``: the main process's pid (0: not watched); ``signal_it``: set the parent-death
-    signal (only when forked from the main thread: the signal follows the forking thread).
+    signal (only when forked from the main thread: the signal follows the forking thread);
+    ``threads``: threads it detects on (the detector's and OpenCV's, as ``run --threads``).
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the group: the main process decides
     signal.signal(signal.SIGTERM, signal.SIG_DFL)  # not the main process's stop handler, inherited by fork
@@ -143,7 +144,10 @@ def _worker(detector_name: str, params: Any, ring_spec: tuple | None, requests: 
     ring = FrameRing(ring_spec[0], ring_spec[1], ring_spec[2], name=ring_spec[3]) if ring_spec else None
     orphaned = False
     try:
-        detector = make_detector(detector_name, params)
+        import cv2
+
+        cv2.setNumThreads(threads)
+        detector = make_detector(detector_name, params, threads=threads)
         while True:
             try:
                 message = requests.get(timeout=PARENT_POLL_S) if parent else requests.get()
@@ -185,7 +189,7 @@ class DetectorProcess:
     """
 
     def __init__(self, detector_name: str, params: Any, first_frame: np.ndarray, *, slots: int = 4,
-                 transport: str = "shm") -> None:
+                 transport: str = "shm", threads: int = 1) -> None:
         if transport not in ("shm", "pickle"):
             raise ValueError(f"transport: got {transport!r}, allowed shm, pickle")
         method = "fork" if sys.platform.startswith("linux") else "spawn"
@@ -197,7 +201,7 @@ class DetectorProcess:
         spec = (self.ring.shape, self.ring.dtype.str, slots, self.ring.name) if self.ring else None
         signal_it = method == "fork" and threading.current_thread() is threading.main_thread()
         self.process = ctx.Process(target=_worker, args=(detector_name, params, spec, self.requests, self.replies,
-                                                         os.getpid(), signal_it),
+                                                         os.getpid(), signal_it, threads),
                                    name="antiscatter-detector", daemon=True)
         self.process.start()
         self.in_flight = 0

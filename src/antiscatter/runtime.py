@@ -15,10 +15,10 @@ import signal
 import sys
 import threading
 import time
-from contextlib import ExitStack
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping, TextIO
+from typing import Any, Callable, Iterator, Mapping, TextIO
 
 import cv2
 import numpy as np
@@ -74,6 +74,18 @@ def metrics_columns(detector: Detector) -> list[str]:
     extra_stages = [f"{s.label} Duration (s)" for s in detector.stages
                     if f"{s.label} Duration (s)" not in REPORT_COLUMNS]
     return [*REPORT_COLUMNS, *EXTRA_COLUMNS, *extra_stages]
+
+
+@contextmanager
+def _opencv_threads(threads: int) -> Iterator[None]:
+    """OpenCV's own functions on ``threads`` threads while the block runs (``run --threads``; the
+    process's setting before, OpenCV's default one a core, is put back after)."""
+    previous = cv2.getNumThreads()
+    cv2.setNumThreads(threads)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(previous)
 
 
 def time_stages(detector: Detector, image: np.ndarray | Pooled, *,
@@ -855,8 +867,8 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
     """
     log = log or sys.stderr
     out = out or sys.stdout
-    detector = make_detector(config.detector.name, config.detector_params)
     rc = config.run
+    detector = make_detector(config.detector.name, config.detector_params, threads=rc.threads)
     # every file this run writes, before any work: one line and nothing written when one cannot be
     for flag, value in (("run.metrics (--metrics)", rc.metrics), ("run.detections (--detections)", rc.detections)):
         if value:
@@ -897,6 +909,7 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
 
     with ExitStack() as stack:
         stop = stack.enter_context(StopFlag())  # first: a signal from here on stops the run with its files whole
+        stack.enter_context(_opencv_threads(rc.threads))
         panel = None
         if rc.web:  # its port first: a bad or busy one fails before the source opens or a file is touched
             from .web import ControlPanel
@@ -1345,7 +1358,8 @@ def _run_processes(pipeline: _Pipeline, source: FrameSource, stop: "StopFlag", r
     if first is None:
         summary.stop_reason = "source ended"
         return
-    worker = DetectorProcess(config.detector.name, config.detector_params, first.image, transport=transport)
+    worker = DetectorProcess(config.detector.name, config.detector_params, first.image, transport=transport,
+                             threads=rc.threads)
     pending: dict[int, tuple[Any, int, int]] = {}
     pacer = Pacer(rc.fps)
     submitted = 0

@@ -11,6 +11,7 @@ the next ones, and the runtime runs them once the pattern is out.
 from __future__ import annotations
 
 import functools
+import os
 from dataclasses import dataclass, fields, is_dataclass, replace
 from typing import Any, Callable
 
@@ -19,7 +20,7 @@ import numpy as np
 from ..detections import Detections
 
 __all__ = ["Stage", "Detector", "Pooled", "DETECTORS", "register_detector", "detector_entry", "make_detector", "detect",
-           "MIN_FRAME_SIDE", "MAX_FRAME_PIXELS", "check_frame_size"]
+           "with_sensitivity", "MIN_FRAME_SIDE", "MAX_FRAME_PIXELS", "check_frame_size", "MAX_THREADS", "check_threads"]
 
 #: the fewest pixels a frame may have either way: no background cell, ring or half-resolution
 #: working image fits in less (the ``contrast`` detector's at 2x2 blocks must be 3 px or more;
@@ -31,6 +32,9 @@ MAX_FRAME_PIXELS = 8192 * 8192
 #: frame-sized buffers a command may hold at once (sources, pipeline, working images, the
 #: twin's pixel grids), counted as BGR bytes: a frame larger than physical memory over this is refused
 FRAME_BUFFERS = 64
+#: the most threads a detector (``run --threads``, ``bench --threads``) takes: four per CPU, more
+#: only measure contention
+MAX_THREADS = 4 * (os.cpu_count() or 1)
 
 
 @functools.cache
@@ -58,6 +62,15 @@ def check_frame_size(width: int, height: int, what: str = "frame", *, error: typ
         why = "" if limit == MAX_FRAME_PIXELS else f" ({memory / 2 ** 30:.1f} GB of memory)"
         raise error(f"{what} of {width}x{height} px: too large, allowed at most {limit / 1e6:.1f} million pixels"
                     f"{why}")
+
+
+def check_threads(threads: int, what: str | None = None, *, error: type[Exception] = ValueError) -> int:
+    """``threads`` when it is an integer 1..``MAX_THREADS``; else ``error``, its message led by
+    ``what`` (default ``threads: got <value>``)."""
+    if isinstance(threads, bool) or not isinstance(threads, int) or not 1 <= threads <= MAX_THREADS:
+        allowed = f"allowed 1..{MAX_THREADS} ({MAX_THREADS // 4} CPUs here, four threads each)"
+        raise error(f"{what}: {allowed}" if what else f"threads: got {threads!r}, {allowed}")
+    return threads
 
 
 @dataclass(frozen=True)
@@ -182,6 +195,7 @@ class _Entry:
     summary: str
     sweep: tuple[str, tuple] = ("", ())  # sensitivity parameter and values for PR curves
     sweep_scaled: tuple[str, ...] = ()  # parameters that scale with it
+    threaded: bool = False  # build takes ``threads`` (its frame-wide filters run in bands on them)
 
 
 DETECTORS: dict[str, _Entry] = {}
@@ -189,16 +203,17 @@ DETECTORS: dict[str, _Entry] = {}
 
 def register_detector(name: str, params: type, build: Callable[[Any], Detector],
                       summary: str, *, sweep: tuple[str, tuple] = ("", ()),
-                      sweep_scaled: tuple[str, ...] = ()) -> None:
+                      sweep_scaled: tuple[str, ...] = (), threaded: bool = False) -> None:
     """Add a detector under ``name``; ``params`` is its frozen config dataclass.
 
     sweep: (parameter name, values from most to least sensitive) used to draw
     precision-recall curves; sweep_scaled: parameters moved in proportion with it
-    (a second threshold bound to the first).
+    (a second threshold bound to the first).  threaded: ``build`` takes a keyword ``threads``
+    (the number of threads it detects on, >= 1), and gives the same detections on any number.
     """
     if not is_dataclass(params):
         raise TypeError("params must be a dataclass type")
-    DETECTORS[name] = _Entry(params, build, summary, sweep, sweep_scaled)
+    DETECTORS[name] = _Entry(params, build, summary, sweep, sweep_scaled, threaded)
 
 
 def detector_entry(name: str) -> _Entry:
@@ -211,14 +226,17 @@ def detector_entry(name: str) -> _Entry:
         raise UsageError(f"unknown detector {name!r}; allowed: {', '.join(sorted(DETECTORS))}") from None
 
 
-def make_detector(name: str, params: Any = None) -> Detector:
-    """Build the detector registered as ``name`` with its params dataclass (or defaults)."""
+def make_detector(name: str, params: Any = None, *, threads: int = 1) -> Detector:
+    """Build the detector registered as ``name`` with its params dataclass (or defaults).
+
+    threads: threads a ``threaded`` detector detects on (default 1; the same detections on any
+    number); a detector that is not threaded runs on one whatever is asked."""
     entry = detector_entry(name)
     if params is None:
         params = entry.params()
     elif not isinstance(params, entry.params):
         raise TypeError(f"detector {name!r} takes {entry.params.__name__}, got {type(params).__name__}")
-    return entry.build(params)
+    return entry.build(params, threads=threads) if entry.threaded else entry.build(params)
 
 
 def with_sensitivity(name: str, params: Any, value: float) -> Any:

@@ -53,7 +53,8 @@ The modules, in the order a frame meets them:
 - ``components``: stages 4-5 -- :func:`label` and :func:`measure`; ``split``: the split of
   components holding several particles; ``groups``: per-label reductions both use.
 - ``chain``: :func:`build_contrast`, the stages as the runtime times them, and
-  :class:`~.chain.ChainState`, what they pass between them and across frames.
+  :class:`~.chain.ChainState`, what they pass between them and across frames; ``bands``: the
+  :class:`~.bands.BandPool` its frame-wide filters run on with ``threads`` > 1.
 
 The measured history of the defaults: ``docs/decisions/001-contrast-tuning.md``.
 """
@@ -80,4 +81,5 @@ __all__ = ["ContrastParams", "CHANNELS", "to_channel", "downsample", "Background
 register_detector("contrast", ContrastParams, build_contrast,
                   "local contrast over a learnt background, threshold in noise units, one labelling pass "
                   "(the default)",
-                  sweep=("k", (2.0, 2.5, 3.0, 3.5, 4.0, 5.0, 6.0, 8.0, 10.0, 14.0)), sweep_scaled=("k_expected",))
+                  sweep=("k", (2.0, 2.5, 3.0, 3.5, 4.0, 5.0, 6.0, 8.0, 10.0, 14.0)), sweep_scaled=("k_expected",),
+                  threaded=True)

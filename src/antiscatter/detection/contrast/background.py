@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from ...detections import Detections
+from .bands import BandPool
 from .kernels import _disc
 
 
@@ -37,13 +38,14 @@ def local_median(image: np.ndarray, window: int) -> np.ndarray:
     return cv2.resize(cv2.medianBlur(small, kernel), (w, h), interpolation=cv2.INTER_LINEAR)
 
 
-def spatial_background(half: np.ndarray, *, cell: int, window: int = 0) -> np.ndarray:
+def spatial_background(half: np.ndarray, *, cell: int, window: int = 0, pool: BandPool | None = None) -> np.ndarray:
     """Background of a working-resolution frame from that frame alone, float32 (h, w): the 3x3
     median of the cell means (the lamp's cone, the scene's brightness at a coarse scale), raised
     to the frame's ``window`` x ``window`` median where that is brighter (texture: a pebble,
     a padding highlight larger than half the window stays background, a particle smaller does not).
 
     cell: cell size, window: median window (0 = none), both in working-resolution pixels.
+    pool: threads the texture median runs on in bands (None: the caller's alone; the same result).
     """
     h, w = half.shape
     c = max(cell, 1)
@@ -57,7 +59,11 @@ def spatial_background(half: np.ndarray, *, cell: int, window: int = 0) -> np.nd
         # as local_median takes, blur it into false spots along lit patches' rims)
         small = cv2.resize(half, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
         # OpenCV's 8-bit median takes windows up to 255 (frames over 6000 px wide ask for more)
-        texture = cv2.medianBlur(small, min(max(int(round(window / 2)) | 1, 3), 255))
+        kernel = min(max(int(round(window / 2)) | 1, 3), 255)
+        if pool is None or pool.threads == 1:
+            texture = cv2.medianBlur(small, kernel)
+        else:
+            texture = pool.filter(lambda rows: cv2.medianBlur(rows, kernel), small, kernel // 2, np.empty_like(small))
         coarse = cv2.max(coarse, cv2.resize(texture, (w, h), interpolation=cv2.INTER_LINEAR).astype(coarse.dtype))
     return coarse.astype(np.float32, copy=False)
 
@@ -83,15 +89,28 @@ def _rings(texture: int) -> tuple[int, ...]:
     return tuple(radii)
 
 
-def prominent_only(mask: np.ndarray, prominent: np.ndarray, reach: int) -> np.ndarray:
+def prominent_only(mask: np.ndarray, prominent: np.ndarray, reach: int, pool: BandPool | None = None) -> np.ndarray:
     """``mask`` (uint8) cut to its components that hold a ``prominent`` pixel, and within ``reach``
     pixels of one: a spot that outshines its rings is a particle and the rest of its component
-    its rim (a neighbour it touches, which its rings cross, too); what holds none is texture."""
+    its rim (a neighbour it touches, which its rings cross, too); what holds none is texture.
+    pool: threads the cut is made on in bands (the labelling once, whole; None: the caller's
+    alone; the same result)."""
     count, labels = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
     keep = np.zeros(count, np.uint8)
     keep[labels[prominent > 0]] = 255
     keep[0] = 0
-    return cv2.bitwise_and(keep[labels], cv2.dilate(prominent, _disc(reach)))
+    disc = _disc(reach)
+    if pool is None or pool.threads == 1:
+        return cv2.bitwise_and(keep[labels], cv2.dilate(prominent, disc))
+    out = np.empty_like(mask)
+    rows = mask.shape[0]
+
+    def work(r0: int, r1: int) -> None:
+        a, b = max(r0 - reach, 0), min(r1 + reach, rows)
+        cv2.bitwise_and(keep[labels[r0:r1]], cv2.dilate(prominent[a:b], disc)[r0 - a: r1 - a], dst=out[r0:r1])
+
+    pool.run(work, pool.spans(rows))
+    return out
 
 
 #: the window (working pixels at 800 px wide, scaled with the width above) of the median a single
@@ -101,7 +120,7 @@ NOISE_WINDOW = 13
 
 
 def prominence_level(half: np.ndarray, rings: tuple[int, ...], *, cell: int,
-                     window: int = NOISE_WINDOW) -> tuple[np.ndarray, np.ndarray]:
+                     window: int = NOISE_WINDOW, pool: BandPool | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(level uint8 (h, w), noise float32 per coarse cell) of a working-resolution frame, from that
     frame alone.
 
@@ -112,18 +131,30 @@ def prominence_level(half: np.ndarray, rings: tuple[int, ...], *, cell: int,
     spread of the frame about its ``window`` x ``window`` median, both ways, as a Gaussian's sigma
     -- the sensor's noise on plain water, the texture's grain on textured ground, where a spot
     must outshine more to count (both ways: on one frame the texture's bright side is what
-    makes false alarms).
+    makes false alarms).  pool: threads the rings run on in bands (None: the caller's alone; the
+    same result).
     """
     h, w = half.shape
-    level = None
-    for radius in rings:
-        ring = cv2.dilate(half, _ring(radius))
-        level = ring if level is None else cv2.min(level, ring)
+    if not rings:
+        level = None
+    elif pool is None or pool.threads == 1:
+        level = ring_level(half, rings)
+    else:  # a ring reaches its radius plus its width (2) from the centre
+        level = pool.filter(lambda rows: ring_level(rows, rings), half, max(rings) + 2, np.empty_like(half))
     middle = local_median(half, window)
     spread = cv2.absdiff(half, middle).astype(np.float32)
     cells = cv2.resize(spread, (max(w // cell, 3), max(h // cell, 3)), interpolation=cv2.INTER_AREA)
     noise = cv2.medianBlur(cells, 3) * np.float32(1.2533)  # s = sqrt(pi / 2) E|x| for Gaussian noise
     return level, noise
+
+
+def ring_level(half: np.ndarray, rings: tuple[int, ...]) -> np.ndarray:
+    """uint8 (h, w): for each pixel the lowest, over the rings of ``rings`` radii (pixels, at least
+    one), of the brightest pixel on the ring around it (see :func:`prominence_level`)."""
+    level = cv2.dilate(half, _ring(rings[0]))
+    for radius in rings[1:]:
+        cv2.min(level, cv2.dilate(half, _ring(radius)), dst=level)
+    return level
 
 
 def threshold_mask(half: np.ndarray, base: np.ndarray, limit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -174,13 +205,14 @@ class FrameAlone(NamedTuple):
 
 
 def frame_alone(half: np.ndarray, *, cell: int, window: int, rings: tuple[int, ...], noise_window: int,
-                k: float, min_contrast: float) -> FrameAlone:
+                k: float, min_contrast: float, pool: BandPool | None = None) -> FrameAlone:
     """A frame's candidates by the frame alone, as a first frame is detected: its excess over its
     spatial background beyond ``k`` times the noise at the rings' scale (and ``min_contrast``), cut
-    to the spots that outshine their ``rings``."""
-    base = cv2.convertScaleAbs(spatial_background(half, cell=cell, window=window))
-    level, noise = prominence_level(half, rings, cell=cell, window=noise_window)
+    to the spots that outshine their ``rings``.  pool: threads its filters run on in bands (None:
+    the caller's alone; the same result)."""
+    base = cv2.convertScaleAbs(spatial_background(half, cell=cell, window=window, pool=pool))
+    level, noise = prominence_level(half, rings, cell=cell, window=noise_window, pool=pool)
     limit = limit_map(noise, half.shape, k, min_contrast)
     mask, excess = threshold_mask(half, base, limit)
-    mask = prominent_only(mask, threshold_mask(half, level, limit)[0], max(rings[-1] // 2, 1))
+    mask = prominent_only(mask, threshold_mask(half, level, limit)[0], max(rings[-1] // 2, 1), pool)
     return FrameAlone(mask, excess, noise, limit)

@@ -14,8 +14,9 @@ import numpy as np
 
 from ...detections import Detections
 from .. import Detector, Pooled, Stage
+from .bands import BandPool, downsample_in_bands
 from .background import NOISE_WINDOW, _near, _rings, prominent_only, threshold_mask
-from .components import brightest, label, measure
+from .components import brightest, label, measure_in_bands
 from .kernels import _disc
 from .model import BackgroundModel
 from .params import ContrastParams
@@ -72,10 +73,15 @@ class ChainState:
     seen: np.ndarray | None = None
 
 
-def build_contrast(params: ContrastParams) -> Detector:
-    """The ``contrast`` chain as timed stages (one background model per detector instance)."""
+def build_contrast(params: ContrastParams, *, threads: int = 1) -> Detector:
+    """The ``contrast`` chain as timed stages (one background model per detector instance).
+
+    threads: threads the frame-wide filters run on in bands of rows, and the components are
+    measured on in bands of labels beside the coarse scale (:class:`~.bands.BandPool`; default 1);
+    the detections and what the model learns are the same on any number."""
+    pool = BandPool(threads)
     model = BackgroundModel(cell=params.cell, memory=params.memory, k=params.k, min_contrast=params.min_contrast,
-                            follow=params.follow, defer_looks=True)
+                            follow=params.follow, defer_looks=True, pool=pool if threads > 1 else None)
     state = ChainState()
     persist_kernel = _disc(params.persist_radius) if params.persist_radius else None
 
@@ -100,6 +106,11 @@ def build_contrast(params: ContrastParams) -> Detector:
         if isinstance(image, Pooled):
             state.grey, state.point = image.full, 0.0
             return image.working
+        if pool.threads > 1 and factor > 1 and image.shape[0] % factor == 0 and image.shape[1] % factor == 0:
+            state.point = params.point
+            state.grey, half = downsample_in_bands(image, pool, factor=factor, channel=params.channel,
+                                                   point=params.point)
+            return half
         grey = image if image.ndim == 2 else to_channel(image, params.channel)
         state.grey, state.point = grey, params.point
         return downsample(grey, factor=factor, channel=params.channel, point=params.point)
@@ -137,7 +148,7 @@ def build_contrast(params: ContrastParams) -> Detector:
         if prominent is not None:
             # a single frame's candidates cut to what stands out; the model learns from the cut mask,
             # so the texture the cut left out is learnt as background from this frame on
-            mask = prominent_only(mask, prominent, max(model.rings[-1] // 2, 1))
+            mask = prominent_only(mask, prominent, max(model.rings[-1] // 2, 1), model.pool)
         elif MOVING_SCALE and state.frozen is None and model.rings and (model.moving() or model.young()):
             # while the view moves the learnt background is resampled and lags, and in its first
             # frames it still holds much of the spatial start: a candidate must also stand out in
@@ -164,16 +175,26 @@ def build_contrast(params: ContrastParams) -> Detector:
             seen, state.seen = state.seen, None
         if seen is not None and seen.shape != mask.shape:
             seen = None
-        found = measure(components, excess, model.noise, halo=params.halo, core=params.core,
-                        max_radius=params.max_radius, split=params.split, frame_width=state.width,
-                        factor=state.factor, lone_k=params.lone_k, seen=seen,
-                        full=None if state.grey is None else (state.grey, state.base), fine=state.frozen is None,
-                        split_budget=int(SPLIT_BUDGET * mask.size))
+
+        def fine() -> Detections:  # in bands of components with threads > 1 (measure itself with one)
+            return measure_in_bands(components, excess, model.noise, pool, halo=params.halo, core=params.core,
+                                    max_radius=params.max_radius, split=params.split, frame_width=state.width,
+                                    factor=state.factor, lone_k=params.lone_k, seen=seen,
+                                    full=None if state.grey is None else (state.grey, state.base), fine=state.frozen is None,
+                                    split_budget=int(SPLIT_BUDGET * mask.size))
+
         if params.coarse and state.frozen is None:
             still = model.learnt() and not model.moving() and model.base is not None
-            found = merge_scales(found, coarse_particles(
-                reflectance, model.base if still else None, factor=state.factor, width=state.width, k=params.k,
-                min_contrast=params.min_contrast, core=params.core, halo=params.halo, max_radius=params.max_radius))
+            learnt = model.base if still else None
+
+            def coarse() -> Detections:
+                return coarse_particles(reflectance, learnt, factor=state.factor, width=state.width, k=params.k,
+                                        min_contrast=params.min_contrast, core=params.core, halo=params.halo,
+                                        max_radius=params.max_radius)
+
+            found = merge_scales(*pool.call(fine, coarse))  # the two scales at once with threads > 1
+        else:
+            found = fine()
         state.learn = (reflectance, mask, state.frozen)
         return brightest(found, params.max_particles)
 

@@ -4,7 +4,7 @@
 
 from __future__ import annotations
 
-from typing import NotRequired, TypedDict
+from typing import TYPE_CHECKING, Any, NotRequired, TypedDict
 
 import cv2
 import numpy as np
@@ -12,7 +12,10 @@ import numpy as np
 from ...detections import Detections
 from .background import noise_at
 from .groups import _gather, _group_max
-from .split import _split_peaks
+from .split import _split_peaks, split_images
+
+if TYPE_CHECKING:
+    from .bands import BandPool
 
 
 class Components(TypedDict):
@@ -75,9 +78,23 @@ def measure(components: Components, excess: np.ndarray, noise: np.ndarray, *,
     split_budget: the split's bound on its work (see :func:`_split_peaks`; 0 = none); the
     components it left whole are counted in the detections' ``cut``.
     """
+    return _measure(components, excess, noise, halo=halo, max_radius=max_radius, split=split,
+                    frame_width=frame_width, factor=factor, lone_k=lone_k, seen=seen, core=core, full=full,
+                    fine=fine, split_budget=split_budget)[0]
+
+
+def _measure(components: Components, excess: np.ndarray, noise: np.ndarray, *,
+             halo: float, max_radius: float, split: bool, frame_width: int, factor: int = 2,
+             lone_k: float = 0.0, seen: np.ndarray | None = None, core: float = 0.0,
+             full: tuple[np.ndarray, np.ndarray] | None = None, fine: bool = True,
+             split_budget: int = 0, images: tuple | None = None) -> tuple[Detections, int, int]:
+    """:func:`measure`'s (detections, how many of them come first, one a component in component
+    order -- the rest are the further particles split components held, in component order --, the
+    work the split would do unbounded, pixel-peak pairs).  images: the split's
+    :func:`~.split.split_images` of ``excess``, when made already."""
     n = components["count"]
     if n == 0:
-        return Detections.empty()
+        return Detections.empty(), 0, 0
     lab, x, y = components["labels"], components["x"], components["y"]
     flat = components.get("flat")
     if flat is None:
@@ -85,11 +102,13 @@ def measure(components: Components, excess: np.ndarray, noise: np.ndarray, *,
     weight = np.maximum(_gather(excess, flat).astype(np.float64), 1e-3)
     area = np.bincount(lab, minlength=n)
     (peak,) = _group_max(lab, n, weight)
-    cut = 0
+    cut = work = 0
+    components_n = n
     if split:
         unsplit = lab
-        lab, n, cut = _split_peaks(lab, x, y, weight, excess, noise, n, full=full if factor == 2 else None,
-                                   fine=fine, area=area, peak=peak, flat=flat, budget=split_budget)
+        lab, n, cut, work = _split_peaks(lab, x, y, weight, excess, noise, n, full=full if factor == 2 else None,
+                                         fine=fine, area=area, peak=peak, flat=flat, budget=split_budget,
+                                         images=images)
         if lab is not unsplit:
             area = np.bincount(lab, minlength=n)
             (peak,) = _group_max(lab, n, weight)
@@ -117,7 +136,60 @@ def measure(components: Components, excess: np.ndarray, noise: np.ndarray, *,
             if seen is not None:
                 strong |= seen[py, px] > 0
             keep[lone] &= strong
-    return Detections(centres[keep], radii[keep], scores=wsum[keep], cut=cut)
+    return (Detections(centres[keep], radii[keep], scores=wsum[keep], cut=cut), int(keep[:components_n].sum()),
+            work)
+
+
+#: fewest components a band of :func:`measure_in_bands` holds: fewer cost more to hand over than to measure
+MIN_COMPONENTS = 16
+
+
+def measure_in_bands(components: Components, excess: np.ndarray, noise: np.ndarray, pool: BandPool,
+                     **settings: Any) -> Detections:
+    """:func:`measure`'s detections, in its order, measured in bands of components on ``pool``'s threads.
+
+    The components are labelled once over the whole frame, in the order of their first pixel
+    (raster order), so consecutive labels make horizontal bands of the frame; each band holds
+    whole components -- a particle on a seam belongs to the band of its first row -- and about
+    the same number of pixels.  A component's split and measures depend on its own pixels alone,
+    so each band's detections are the whole frame's for those components; they are put back in
+    :func:`measure`'s order (each component's first particle by label, then the further particles
+    of split components by label).  The split's budget bounds the whole frame's work: when the
+    bands' work adds up to more than it, the frame is measured again whole (as :func:`measure`
+    chooses which components to leave unsplit over the frame).  settings: :func:`measure`'s."""
+    n = components["count"]
+    count = min(pool.threads, n // MIN_COMPONENTS)
+    if count < 2:
+        return measure(components, excess, noise, **settings)
+    lab = components["labels"]
+    area = np.bincount(lab, minlength=n)
+    pixels = np.cumsum(area)
+    edges = np.searchsorted(pixels, pixels[-1] * np.arange(1, count) / count, side="right")
+    edges = np.unique(np.concatenate([[0], np.minimum(edges, n), [n]]))
+    spans = [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+    flat = components.get("flat")
+    parts: dict[int, tuple[Detections, int, int]] = {}
+    images = None  # the split's frame-wide images, once for all bands (in bands)
+    if settings.get("split") and area.max() >= 8:
+        images = split_images(excess, settings.get("fine", True), pool)
+
+    def work(a: int, b: int) -> None:
+        sel = np.flatnonzero((lab >= a) & (lab < b))
+        part: Components = {"labels": lab[sel] - a, "x": components["x"][sel], "y": components["y"][sel],
+                            "count": b - a}
+        if flat is not None:
+            part["flat"] = flat[sel]
+        parts[a] = _measure(part, excess, noise, images=images, **settings)
+
+    pool.run(work, spans)
+    found = [parts[a] for a, _ in spans]
+    budget = settings.get("split_budget", 0)
+    if budget and sum(w for _, _, w in found) > budget:
+        return measure(components, excess, noise, **settings)
+    order = [(d, slice(None, first)) for d, first, _ in found] + [(d, slice(first, None)) for d, first, _ in found]
+    return Detections(np.concatenate([d.centres[s] for d, s in order]).reshape(-1, 2),
+                      np.concatenate([d.radii[s] for d, s in order]),
+                      scores=np.concatenate([d.scores[s] for d, s in order]), cut=sum(d.cut for d, _, _ in found))
 
 
 def brightest(found: Detections, limit: int) -> Detections:

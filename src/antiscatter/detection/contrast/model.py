@@ -5,9 +5,12 @@ mixin :class:`~antiscatter.detection.contrast.follow.ViewFollowing`.
 
 from __future__ import annotations
 
+from typing import Callable
+
 import cv2
 import numpy as np
 
+from .bands import BandPool
 from .background import NOISE_WINDOW, frame_alone, limit_map, prominence_level, spatial_background, threshold_mask
 from .follow import ViewFollowing
 
@@ -82,7 +85,8 @@ class BackgroundModel(ViewFollowing):
     WARMUP = 16
 
     def __init__(self, *, cell: int, memory: int, k: float = 4.0, min_contrast: float = 4.0,
-                 bands: int = 4, follow: bool = True, window: int = 0, defer_looks: bool = False) -> None:
+                 bands: int = 4, follow: bool = True, window: int = 0, defer_looks: bool = False,
+                 pool: BandPool | None = None) -> None:
         self.cell = cell
         self.window = window
         self.rings: tuple[int, ...] = ()
@@ -92,6 +96,8 @@ class BackgroundModel(ViewFollowing):
         #: routine looks at a still view's flow are taken by :meth:`look_deferred` (after the
         #: detections) instead of in :meth:`register`
         self.defer_looks = defer_looks
+        #: threads the single-frame filters run on in bands (None: the caller's alone; the same result)
+        self.pool = pool
         self.k = k
         self.min_contrast = min_contrast
         self.alpha = 1.0 / memory if memory else 0.0
@@ -145,17 +151,17 @@ class BackgroundModel(ViewFollowing):
                 self.reset()  # frames of another size: another stream, nothing carries over
             h, w = half.shape
             self._deficit = np.zeros((max(h // self.cell, 3), max(w // self.cell, 3)), np.float32)
-            self.background = spatial_background(half, cell=self.cell, window=self.window)
+            self.background = spatial_background(half, cell=self.cell, window=self.window, pool=self.pool)
             self.base = cv2.convertScaleAbs(self.background)  # rounded, saturated uint8 (background >= 0)
-            for band in range(self.bands):
-                self._measure_noise(half, band)
+            self._each_band(lambda band: self._measure_noise(half, band))
             self._update_limit(half.shape)
             self._previous = self._persist = None
             self._profiles = None
             self._updates[:] = 0
             self._next = 0
             if self.rings:  # a single frame: its particles must stand out (the learning starts as before)
-                level, self.noise = prominence_level(half, self.rings, cell=self.cell, window=self.noise_window)
+                level, self.noise = prominence_level(half, self.rings, cell=self.cell, window=self.noise_window,
+                                                     pool=self.pool)
                 limit = self._limit_map(self.noise, half.shape)
                 self.prominent = threshold_mask(half, level, limit)[0]
                 return self.base, limit
@@ -227,7 +233,7 @@ class BackgroundModel(ViewFollowing):
         small = cv2.resize(half, size, interpolation=cv2.INTER_AREA)
         cell = max(self.cell // 2, 2)
         cells = (max(size[0] // cell, 3), max(size[1] // cell, 3))
-        own = spatial_background(small, cell=cell, window=self.window // 2 if self.window else 0)
+        own = spatial_background(small, cell=cell, window=self.window // 2 if self.window else 0, pool=self.pool)
         base = cv2.resize(self.base, size, interpolation=cv2.INTER_AREA)
         learnt = cv2.resize(cv2.absdiff(small, base).astype(np.float32), cells, interpolation=cv2.INTER_AREA)
         alone = cv2.resize(cv2.absdiff(small.astype(np.float32), own), cells, interpolation=cv2.INTER_AREA)
@@ -243,7 +249,7 @@ class BackgroundModel(ViewFollowing):
         """uint8 (h, w): this frame's candidates by the frame alone (:func:`frame_alone`), at
         ``scale`` times the limit."""
         return frame_alone(half, cell=self.cell, window=self.window, rings=self.rings, noise_window=self.noise_window,
-                           k=self.k * scale, min_contrast=self.min_contrast * scale).mask
+                           k=self.k * scale, min_contrast=self.min_contrast * scale, pool=self.pool).mask
 
     def young(self) -> bool:
         """True for the first ``YOUNG`` frames after a (re)start: the learnt background still holds
@@ -287,9 +293,9 @@ class BackgroundModel(ViewFollowing):
             # the cap (LEARN_REACH): not while the view moves (a moved background is off both ways)
             # nor under the lamp's pattern
             capped = not (first or moving) and frozen is None
-            for band in range(self.bands):
-                self._learn_band(half, mask, band, first, per_update=1, needed=max(2, self.PERSIST // 2),
-                                 under=self.UNDER_WARM, frozen=frozen, capped=capped)
+            self._each_band(lambda band: self._learn_band(half, mask, band, first, per_update=1,
+                                                          needed=max(2, self.PERSIST // 2), under=self.UNDER_WARM,
+                                                          frozen=frozen, capped=capped))
             self._next = 0
             self._update_limit(half.shape)
             return
@@ -300,6 +306,22 @@ class BackgroundModel(ViewFollowing):
                          alpha=max(self.alpha, 1.0 / self.MOVING_MEMORY) if moving else self.alpha)
         if self._next == 0:  # a whole cycle of bands: the noise map has been renewed
             self._update_limit(half.shape)
+
+    def _each_band(self, work: Callable[[int], None]) -> None:
+        """``work(band)`` for every band; on the pool's threads at once when there is one (the bands
+        read and write rows and cells of their own)."""
+        if self.pool is None or self.pool.threads == 1:
+            for band in range(self.bands):
+                work(band)
+            return
+        count = min(self.pool.threads, self.bands)
+        edges = [self.bands * i // count for i in range(count + 1)]
+
+        def some(a: int, b: int) -> None:
+            for band in range(a, b):
+                work(band)
+
+        self.pool.run(some, list(zip(edges[:-1], edges[1:])))
 
     def _learn_band(self, half: np.ndarray, mask: np.ndarray, band: int, first: bool, *, per_update: int,
                     needed: int, under: float, frozen: np.ndarray | None = None,

@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 
 from .background import noise_at
+from .bands import BandPool
 from .groups import _FAST_AT, _gather, _group_max
 from .kernels import _AROUND, _K3, _K5
 
@@ -68,10 +69,40 @@ _BLOCK_X = np.array([0, 1, 0, 1])
 _BLOCK_Y = np.array([0, 0, 1, 1])
 
 
+#: rows of the excess around a pixel that :func:`split_images` reads: the 3x3 smoothing, then a
+#: maximum over at most 5x5 of it
+IMAGE_REACH = 3
+
+
+def split_images(excess: np.ndarray, fine: bool = True,
+                 pool: BandPool | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The frame-wide images the split reads its peaks from, (smoothed, its local maximum, strict):
+    ``fine``: the excess (uint8 (h, w)) smoothed by the 3x3 binomial kernel (x16, int16) and its 3x3
+    maximum, and where the excess is brighter than its 8 neighbours (uint8 mask); otherwise its
+    3x3 sum (uint16), that sum's 5x5 maximum and None.  Exact sums, so equal neighbours tie
+    exactly: the binomial's x16 in 16 bits (at most 4080; 30 % faster than in float32, the same
+    values).  pool: threads they are made on in bands (None: the caller's alone; the same images)."""
+    def images(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        if fine:
+            smooth = cv2.sepFilter2D(rows, cv2.CV_16S, _BINOMIAL, _BINOMIAL)
+            strict = cv2.compare(rows, cv2.dilate(rows, _AROUND), cv2.CMP_GT)
+            return smooth, cv2.dilate(smooth, _K3), strict
+        smooth = cv2.boxFilter(rows, cv2.CV_16U, (3, 3), normalize=False)
+        return smooth, cv2.dilate(smooth, _K5), None
+
+    if pool is None or pool.threads == 1:
+        return images(excess)
+    kind = np.int16 if fine else np.uint16
+    out = (np.empty(excess.shape, kind), np.empty(excess.shape, kind), np.empty_like(excess) if fine else None)
+    return pool.filter(images, excess, IMAGE_REACH, out)
+
+
 def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarray, excess: np.ndarray,
                  noise: np.ndarray, n: int, full: tuple[np.ndarray, np.ndarray] | None = None,
                  fine: bool = True, area: np.ndarray | None = None, peak: np.ndarray | None = None,
-                 flat: np.ndarray | None = None, budget: int = 0) -> tuple[np.ndarray, int, int]:
+                 flat: np.ndarray | None = None, budget: int = 0,
+                 images: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None = None
+                 ) -> tuple[np.ndarray, int, int, int]:
     """Split components that hold two or more particles (touching or overlapping).
 
     Within each component of 8 pixels or more, the local maxima (3x3) of the
@@ -90,33 +121,30 @@ def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarr
     the core (a neck at least a quarter narrower than the smaller disc; at full
     resolution when ``full`` is given, see :func:`_split_flat`).  Pixels go to
     the nearest kept peak of their component.  ``area`` (pixels) and ``peak`` (highest weight) of
-    each component, and ``flat`` (the pixels' raveled indices), when known.
+    each component, and ``flat`` (the pixels' raveled indices), when known; ``images``:
+    :func:`split_images` of the excess, when made already.
 
     budget: the most work the split may do, in pixel-peak pairs (each component costs its pixels
     times its candidate peaks); 0 = no bound.  Over it, the components that cost least are split
     and the rest measured whole.  Returns (labels -- ``lab`` itself when nothing was split --,
-    components, components left whole for the budget).
+    components, components left whole for the budget, the work all would have cost).
     """
     area = np.bincount(lab, minlength=n) if area is None else area
     inside = area[lab] >= 8
     if not inside.any():
-        return lab, n, 0
+        return lab, n, 0, 0
     idx = np.flatnonzero(inside)
     px, py, pl = x[idx], y[idx], lab[idx]
     pf = py * excess.shape[1] + px if flat is None else flat[idx]
-    # exact sums, so equal neighbours tie exactly: the binomial's x16 in 16 bits (at most 4080; 30 %
-    # faster than in float32, the same values)
-    if fine:
-        smooth_img, window, weights, min_d2 = cv2.sepFilter2D(excess, cv2.CV_16S, _BINOMIAL, _BINOMIAL), _K3, 16.0, 4
-    else:
-        smooth_img, window, weights, min_d2 = cv2.boxFilter(excess, cv2.CV_16U, (3, 3), normalize=False), _K5, 9.0, 9
+    smooth_img, local_max, strict_img = split_images(excess, fine) if images is None else images
+    weights, min_d2 = (16.0, 4) if fine else (9.0, 9)
     s = smooth_img.ravel().take(pf)
-    is_max = s >= cv2.dilate(smooth_img, window).ravel().take(pf)
+    is_max = s >= local_max.ravel().take(pf)
     pw = weight[idx]
     top = peak if peak is not None else _group_max(pl, n, pw)[0]
     if fine:  # and the spots the smoothing hid beside a brighter neighbour (inside the frame's rim)
         h, w = excess.shape
-        strict = cv2.compare(excess, cv2.dilate(excess, _AROUND), cv2.CMP_GT).ravel().take(pf)
+        strict = strict_img.ravel().take(pf)
         bump = np.flatnonzero((strict > 0) & ~is_max)  # strict maxima of the excess not yet peaks
         bx, by = px[bump], py[bump]
         bump = bump[(excess.ravel().take(pf[bump]) < SPOT_SHARE * top[pl[bump]])
@@ -124,7 +152,8 @@ def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarr
         spot = bump[_spots(excess, pf[bump])]
         is_max[spot] = True
     maxima = np.bincount(pl[is_max], minlength=n)
-    crowded = _over_budget(np.where(maxima >= 2, area * maxima, 0), budget)
+    cost = np.where(maxima >= 2, area * maxima, 0)
+    crowded = _over_budget(cost, budget)
     if crowded.any():  # measured whole: no peaks, no shape test
         maxima[crowded] = 0
     peaks = np.flatnonzero(is_max & (maxima[pl] >= 2))
@@ -154,9 +183,9 @@ def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarr
             kept_x = np.concatenate([kept_x[keep], flat_x])
     counts = np.bincount(kept_c, minlength=n)
     split = counts >= 2
-    unsplit = int(crowded.sum())
+    unsplit, work = int(crowded.sum()), int(cost.sum())
     if not split.any():
-        return lab, n, unsplit
+        return lab, n, unsplit, work
     sel = np.flatnonzero(split[kept_c])
     kc, ky, kx = kept_c[sel], kept_y[sel], kept_x[sel]
     order = np.argsort(kc, kind="stable")
@@ -177,7 +206,7 @@ def _split_peaks(lab: np.ndarray, x: np.ndarray, y: np.ndarray, weight: np.ndarr
     new_base = n + np.concatenate([[0], np.cumsum(counts[comps] - 1)[:-1]])  # first new label per component
     lab = lab.copy()
     lab[pixels] = np.where(nearest == 0, lab[pixels], new_base[r] + nearest - 1)
-    return lab, n + int((counts[comps] - 1).sum()), unsplit
+    return lab, n + int((counts[comps] - 1).sum()), unsplit, work
 
 
 def _over_budget(cost: np.ndarray, budget: int) -> np.ndarray:

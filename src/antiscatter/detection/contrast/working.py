@@ -17,15 +17,16 @@ def working_factor(width: int, factor: int = 0) -> int:
     return 2 if width >= 640 else 1
 
 
-def to_channel(image: np.ndarray, channel: str = "luma") -> np.ndarray:
-    """(H, W, 3) BGR -> (H, W) uint8: ``channel`` of CHANNELS (luma = the Y of YUV, Rec. 601)."""
+def to_channel(image: np.ndarray, channel: str = "luma", out: np.ndarray | None = None) -> np.ndarray:
+    """(H, W, 3) BGR -> (H, W) uint8: ``channel`` of CHANNELS (luma = the Y of YUV, Rec. 601),
+    written into ``out`` when given (contiguous (H, W) uint8)."""
     if image.shape[2] < 3:
-        return cv2.extractChannel(image, 0)
+        return cv2.extractChannel(image, 0, dst=out)
     if channel == "luma":
-        return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY, dst=out)
     if channel == "min":
-        return cv2.min(cv2.min(image[..., 0], image[..., 1]), image[..., 2])
-    return cv2.extractChannel(image, {"blue": 0, "green": 1, "red": 2}[channel])
+        return cv2.min(cv2.min(image[..., 0], image[..., 1]), image[..., 2], dst=out)
+    return cv2.extractChannel(image, {"blue": 0, "green": 1, "red": 2}[channel], dst=out)
 
 
 def downsample(image: np.ndarray, *, factor: int = 2, channel: str = "luma", point: float = 0.0) -> np.ndarray:
