@@ -32,7 +32,7 @@ from .levels import HoleLevels
 from .outputs import LightOutput, check_output, open_output
 from .pattern import camera_light, grow_holes, render_pattern, scale_mapping
 from .probe import Intervals
-from .sources import FrameSource, frame_time_ns, open_source, parse_crop
+from .sources import FrameSource, open_source, parse_crop
 from .sources.base import FrameClock, seconds_text
 from .stats import RunningStats
 from .tracking import PREDICT_AHEAD
@@ -342,7 +342,7 @@ class _Pipeline:
         if not getattr(source, "live", False):
             rate = source.fps or config.run.fps or FOLDER_FPS
             self.frame_interval = 1.0 / rate
-        # the frame's true time in the CSVs and the MCAP log (a live source's as UNIX time)
+        # the frame's true time: the tracker's, and in the CSVs and the MCAP log (a live source's as UNIX time)
         self.frame_clock = FrameClock(live=self.frame_interval is None, interval_s=self.frame_interval or 0.0)
         self.probe = None
         self.shown_probes: Mapping = {}  # each track's interval in the pattern the next exposure sees
@@ -461,8 +461,7 @@ class _Pipeline:
         holes, track_ns, track_ids, probes, intervals, exposure_holes = detections, 0, None, {}, None, None
         if self.tracker is not None:
             t_track = clock()
-            captured = (frame.timestamp_ns / 1e9 if self.frame_interval is None
-                        else frame_time_ns(frame, self.frame_interval * 1e9) / 1e9)
+            captured = self.frame_clock.source_ns(frame) / 1e9
             tracks = self.tracker.update(detections, captured, unlit=self.unlit_ids)
             track_ids = tracks.detection_ids
             prediction = self.tracker.snapshot()
@@ -788,7 +787,7 @@ class _Pipeline:
             self.recording = entry
         if self.recorder is not None:
             try:
-                self.recorder.write(frame.image, time_ns=frame_time_ns(frame, (self.frame_interval or 0.0) * 1e9),
+                self.recorder.write(frame.image, time_ns=self.frame_clock.source_ns(frame),
                                     exposure_ns=frame.exposure_ns, analogue_gain=frame.analogue_gain)
             except Exception as exc:  # noqa: BLE001 - no recording may stop the light
                 self.record_wanted = False

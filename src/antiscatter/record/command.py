@@ -14,7 +14,7 @@ import numpy as np
 from ..errors import UsageError, WriteError, check_output_path
 from ..outputs import open_output
 from ..runtime import Pacer, StopFlag
-from ..sources import frame_time_ns, open_source
+from ..sources import open_source
 from ..sources.base import FrameClock
 from .keys import TerminalKeys
 from .recorder import Recorder, RecorderFull, sidecar_path
@@ -157,7 +157,7 @@ def record(request: RecordRequest, *, log: TextIO | None = None, out: TextIO | N
                 captured += 1
                 if state["recording"]:
                     try:
-                        recorder.write(frame.image, time_ns=frame_time_ns(frame, 1e9 / rate),
+                        recorder.write(frame.image, time_ns=clock.source_ns(frame),
                                        exposure_ns=frame.exposure_ns, analogue_gain=frame.analogue_gain)
                         recorded += 1
                         if log_mcap is not None:

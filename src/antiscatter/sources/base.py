@@ -97,11 +97,16 @@ class FrameClock:
         self.interval_s = interval_s
         self.offset_ns = time.time_ns() - time.monotonic_ns() if live else 0
 
-    def stamp_ns(self, frame: Frame) -> int:
-        """The true time of ``frame``, ns: UNIX time for a live source, its source's own otherwise."""
-        if self.live:  # (a live source's media time is its timestamp_ns)
-            return int(frame.timestamp_ns) + self.offset_ns
+    def source_ns(self, frame: Frame) -> int:
+        """The true time of ``frame`` on its source's clock, ns: the monotonic clock for a live source
+        (its ``timestamp_ns``: a camera's mid-exposure), :func:`frame_time_ns` otherwise."""
+        if self.live:
+            return int(frame.timestamp_ns)
         return frame_time_ns(frame, self.interval_s * 1e9)
+
+    def stamp_ns(self, frame: Frame) -> int:
+        """The true time of ``frame`` as written, ns: UNIX time for a live source, its source's own otherwise."""
+        return self.source_ns(frame) + self.offset_ns
 
 
 class FrameSource:
