@@ -132,3 +132,11 @@ def test_the_csv_columns_are_documented():
     text = (Path(__file__).parents[1] / "docs" / "commands" / "run.md").read_text()
     assert "`frame,time,x,y,radius`" in text and "`Frame Time (s)`" in text
     assert "Frame Time (s)" in metrics_columns(make_detector("contrast"))
+
+
+def test_a_panel_recording_never_takes_a_name_whose_sidecar_exists(tmp_path):
+    from antiscatter.runtime import claim_recording_path
+
+    (tmp_path / "rec.frames.csv").write_text("an earlier recording's times\n")
+    assert claim_recording_path(tmp_path / "rec.mkv") == tmp_path / "rec-2.mkv"
+    assert not (tmp_path / "rec.mkv").exists() and (tmp_path / "rec-2.mkv").exists()
