@@ -416,10 +416,10 @@ def test_a_recording_failing_mid_run_keeps_the_run_going(tmp_path, monkeypatch):
     from antiscatter import record
 
     class FullDisk(record.Recorder):
-        def write(self, image):
+        def write(self, image, **times):
             if self.frames_in >= 3:
                 raise OSError(28, "No space left on device")
-            super().write(image)
+            super().write(image, **times)
 
     monkeypatch.setattr(record, "Recorder", FullDisk)
 
