@@ -144,3 +144,25 @@ class PanelProcess:
         if self.proc.poll() is None:
             self.proc.kill()
             self.proc.communicate()
+
+
+def write_vfr(path: Path, frames: list[np.ndarray], pts: list[int], time_base: Fraction = Fraction(1, 1000),
+              codec: str = "ffv1") -> None:
+    """Write BGR frames with PyAV at the given presentation times (ticks of ``time_base``): a
+    variable-frame-rate file, as a camera that drops frames or a phone makes."""
+    import av
+
+    with av.open(str(path), mode="w") as container:
+        stream = container.add_stream(codec, rate=30)
+        stream.width, stream.height = frames[0].shape[1], frames[0].shape[0]
+        stream.pix_fmt = "bgr0" if codec == "ffv1" else "yuv444p"
+        stream.codec_context.time_base = time_base
+        if codec != "ffv1":
+            stream.options = {"qp": "0"}  # lossless
+        for image, ticks in zip(frames, pts):
+            frame = av.VideoFrame.from_ndarray(image, format="bgr24")
+            frame.pts, frame.time_base = ticks, time_base
+            for packet in stream.encode(frame):
+                container.mux(packet)
+        for packet in stream.encode(None):
+            container.mux(packet)

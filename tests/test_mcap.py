@@ -65,10 +65,16 @@ def test_run_writes_every_frame_as_ros2_messages(video, tmp_path, cli):
         assert {c.message_encoding for c in summary.channels.values()} == {"cdr"}
     messages = by_topic(out)
     assert Counter({t: len(v) for t, v in messages.items()}) == Counter({t: len(frames) for t in TOPICS.values()})
-    # stamped with the frame's time in the file: 1/30 s apart from the run's start, header = log time
+    # stamped with the frame's time in the file (its pts: 1/30 s apart in Matroska's 1 ms ticks, from 0),
+    # the time the CSVs carry; header = log time
+    import av
+
+    with av.open(str(path)) as container:
+        pts_ns = [round(f.pts * f.time_base * 10 ** 9) for f in container.decode(video=0)]
+    assert pts_ns[:4] == [0, 33_000_000, 67_000_000, 100_000_000]
     for topic in TOPICS.values():
         times = np.array([m.log_time_ns for m in messages[topic]])
-        np.testing.assert_array_equal(times - times[0], [round(i * 1e9 / FPS) for i in range(len(frames))])
+        np.testing.assert_array_equal(times, pts_ns)
         for m in messages[topic]:
             stamp = m.ros_msg.header.stamp
             assert stamp.sec * 1_000_000_000 + stamp.nanosec == m.log_time_ns

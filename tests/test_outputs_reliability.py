@@ -192,7 +192,7 @@ def test_run_on_sigterm_at_any_moment_leaves_whole_files_or_none_touched(tmp_pat
         assert proc.returncode == 143, (delay, err)
         if metrics != OLD:  # the run began: whole files
             assert csv_rows(folder / "m.csv")[0][0] == "Capture Duration (s)"
-            assert csv_rows(folder / "d.csv")[0][:2] == ["frame", "x"]
+            assert csv_rows(folder / "d.csv")[0][:3] == ["frame", "time", "x"]
             if (folder / "p.mkv").exists():
                 mkv_frames(folder / "p.mkv")
     assert (runs[-1][1] / "m.csv").read_bytes() != OLD  # the last one ran

@@ -2,6 +2,7 @@
 connections, its port bound before the run starts, and panel recordings that never overwrite a
 file nor stop the run."""
 
+import csv
 import http.client
 import io
 import json
@@ -11,8 +12,10 @@ import threading
 import time
 import urllib.request
 
+import numpy as np
 import pytest
 
+from antiscatter.sources.simulated import SimulatorSource
 from antiscatter.web import TOKEN_HEADER, ControlPanel
 
 from conftest import run_cli
@@ -363,8 +366,15 @@ def test_panel_recordings_are_numbered_never_overwrite_and_are_listed(tmp_path):
     assert list(listed) == [str(tmp_path / "rec-2.mkv"), str(tmp_path / "rec-3.mkv")]
     for path, frames in listed.items():
         with av.open(path) as container:
-            decoded = sum(1 for _ in container.decode(video=0))
-        assert decoded == int(frames) >= 5
+            pts = [f.pts for f in container.decode(video=0)]
+        assert len(pts) == int(frames) >= 5
+        # each frame at its true time (the simulator's scene time, its own rate whatever the pacing, from
+        # where the recording began), in the file from 0 and in its sidecar to the ns
+        rows = list(csv.DictReader(open(path.replace(".mkv", ".frames.csv"), newline="")))
+        times = [int(r["time_ns"]) for r in rows]
+        assert len(rows) == len(pts) and [int(r["pts"]) for r in rows] == pts
+        assert np.allclose(np.diff(times), 1e9 / SimulatorSource().fps, atol=1) and pts[0] == 0
+        assert pts == [round((t - times[0]) / 1e6) for t in times]
 
 
 def test_an_unwritable_record_target_is_refused_before_the_run(tmp_path):
@@ -406,10 +416,10 @@ def test_a_recording_failing_mid_run_keeps_the_run_going(tmp_path, monkeypatch):
     from antiscatter import record
 
     class FullDisk(record.Recorder):
-        def write(self, image):
+        def write(self, image, **times):
             if self.frames_in >= 3:
                 raise OSError(28, "No space left on device")
-            super().write(image)
+            super().write(image, **times)
 
     monkeypatch.setattr(record, "Recorder", FullDisk)
 

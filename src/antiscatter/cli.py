@@ -161,7 +161,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--record-to", metavar="FILE.mkv", help="where the panel's Record button writes the input "
                    "frames (default: antiscatter-<date>-<time>.mkv)")
     g.add_argument("--metrics", metavar="CSV", help="per-frame stage timings, the report's columns first")
-    g.add_argument("--detections", metavar="CSV", help="one row per particle: frame,x,y,radius")
+    g.add_argument("--detections", metavar="CSV", help="one row per particle: frame,time,x,y,radius (time: s)")
     g.add_argument("--mcap", metavar="FILE.mcap", help="every frame as ROS 2 messages in an MCAP file (camera "
                    "image, Detection2DArray with track ids, projector pattern, metrics), stamped with the frame's "
                    "time, for ros2 bag and Foxglove (pip install 'antiscatter[mcap]')")

@@ -427,7 +427,7 @@ class RunConfig:
     fps: pace the loop at this rate, frames per second (0 = as fast as possible).
     nice: process niceness to ask for (-20 highest .. 19), None = leave it.
     metrics: path of the per-frame metrics CSV, empty for none.
-    detections: path of the detections CSV (frame,x,y,radius), empty for none.
+    detections: path of the detections CSV (frame,time,x,y,radius), empty for none.
     mode: ``single`` (one thread; default: it wins `bench --modes` on the simulator) or ``threads``
         (capture, processing and output overlap in three threads) or ``processes`` (detection in a
         worker process fed through shared memory) or ``processes-pickle`` (the report's design:

@@ -13,13 +13,13 @@ install 'antiscatter[mcap]'``).  Topics:
 - ``/antiscatter/metrics``: ``diagnostic_msgs/msg/DiagnosticArray``, one status ``antiscatter``
   whose key/value pairs are the frame's metrics (a standard type every ROS 2 tool shows)
 
-Every message is stamped (header and log time) with the frame's time: see :class:`FrameClock`.
+Every message is stamped (header and log time) with the frame's true time, the one the run's CSVs
+carry: see :class:`~antiscatter.sources.base.FrameClock`.
 """
 
 from __future__ import annotations
 
 import math
-import time
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -27,6 +27,7 @@ import numpy as np
 
 from .detections import Detections
 from .errors import UsageError
+from .sources.base import FrameClock
 
 __all__ = ["McapLog", "FrameClock", "MESSAGE_DEFINITIONS", "TOPICS", "require_mcap"]
 
@@ -92,30 +93,6 @@ def require_mcap() -> None:
         import mcap_ros2.writer  # noqa: F401
     except ImportError:
         raise UsageError("--mcap needs the mcap packages: pip install 'antiscatter[mcap]'") from None
-
-
-class FrameClock:
-    """A frame's time as UNIX nanoseconds, the stamp of its messages.
-
-    live: a camera's frames carry their capture time on the monotonic clock (mid-exposure): mapped
-        to UNIX time by the offset between the two clocks, read once.
-    interval_s: for files and the simulator, seconds between frames: frame ``i`` is stamped at the
-        run's start plus ``i * interval_s`` (its time in the file, not the time it was read).
-    """
-
-    def __init__(self, *, live: bool, interval_s: float, origin_ns: int | None = None) -> None:
-        if not live and not (math.isfinite(interval_s) and interval_s > 0):
-            raise ValueError(f"interval_s: got {interval_s}, allowed a number > 0 for a source that is not live")
-        self.live = live
-        self.interval_s = interval_s
-        self.offset_ns = time.time_ns() - time.monotonic_ns()
-        self.origin_ns = time.time_ns() if origin_ns is None else origin_ns
-
-    def stamp_ns(self, frame: Any) -> int:
-        """UNIX nanoseconds of ``frame`` (a :class:`~antiscatter.sources.Frame`)."""
-        if self.live:
-            return int(frame.timestamp_ns) + self.offset_ns
-        return self.origin_ns + int(round(frame.index * self.interval_s * 1e9))
 
 
 def _stamp(ns: int) -> dict[str, int]:

@@ -33,6 +33,7 @@ from .outputs import LightOutput, check_output, open_output
 from .pattern import camera_light, grow_holes, render_pattern, scale_mapping
 from .probe import Intervals
 from .sources import FrameSource, open_source, parse_crop
+from .sources.base import FrameClock, seconds_text
 from .stats import RunningStats
 from .tracking import PREDICT_AHEAD
 
@@ -58,6 +59,7 @@ REPORT_COLUMNS = (
 #: Columns this product adds after the report's.
 EXTRA_COLUMNS = (
     "Frame",
+    "Frame Time (s)",
     "Capture Timestamp (ns)",
     "Tracking Duration (s)",
     "Pattern Rendering Duration (s)",
@@ -347,11 +349,14 @@ class _Pipeline:
             mapping = calibration.homography
         self.mapping = scale_mapping(source.size, self.projector_size) if mapping is None else mapping
         # the tracker's clock: a camera's sensor time; a file's or the simulator's own frame times
-        # (replays run faster or slower than they were taken, and velocities are per scene second)
+        # (replays run faster or slower than they were taken, and velocities are per scene second):
+        # a video's presentation times, a folder's index over this interval
         self.frame_interval = None
         if not getattr(source, "live", False):
             rate = source.fps or config.run.fps or FOLDER_FPS
             self.frame_interval = 1.0 / rate
+        # the frame's true time: the tracker's, and in the CSVs and the MCAP log (a live source's as UNIX time)
+        self.frame_clock = FrameClock(live=self.frame_interval is None, interval_s=self.frame_interval or 0.0)
         self.probe = None
         self.shown_probes: Mapping = {}  # each track's interval in the pattern the next exposure sees
         self.shown_exposure: np.ndarray | None = None  # and that pattern (probing: verdicts are judged by it)
@@ -430,6 +435,7 @@ class _Pipeline:
         # the detector reads it in the next frame's detection, before the next one is made
         self.camera_from_projector = np.linalg.inv(self.mapping)
         self.camera_size = source.size
+        self.camera_fps = source.fps  # the source's nominal rate (the panel's recordings)
         self.light_buffer = np.empty(source.size[::-1], np.uint8) if self.compensate else None
         self.columns = columns
         self.index_of = {c: i for i, c in enumerate(columns)}
@@ -437,8 +443,7 @@ class _Pipeline:
         self.row = [0.0] * len(columns)
         self.clock = time.perf_counter_ns
         self.panel: Any = None
-        self.mcap: Any = None  # the MCAP log (--mcap) and its FrameClock, set by run
-        self.mcap_clock: Any = None
+        self.mcap: Any = None  # the MCAP log (--mcap), set by run
         self.light_on = True
         self.record_wanted = False
         self.record_path: Path | None = None  # a recording claimed by the panel, for the loop to start
@@ -471,8 +476,7 @@ class _Pipeline:
         holes, track_ns, track_ids, probes, intervals, exposure_holes = detections, 0, None, {}, None, None
         if self.tracker is not None:
             t_track = clock()
-            captured = (frame.timestamp_ns / 1e9 if self.frame_interval is None
-                        else frame.index * self.frame_interval)
+            captured = self.frame_clock.source_ns(frame) / 1e9
             tracks = self.tracker.update(detections, captured, unlit=self.unlit_ids)
             track_ids = tracks.detection_ids
             prediction = self.tracker.snapshot()
@@ -713,7 +717,7 @@ class _Pipeline:
             self.detector.set_light(None if made.light is None else
                                     camera_light(made.light, self.camera_from_projector, self.camera_size,
                                                  out=self.light_buffer))
-        self._record(rec.frame.image)
+        self._record(rec.frame)
         latency_ns = shown_ns - rec.frame.timestamp_ns
         summary = self.summary
         summary.output_times.append(shown_ns)
@@ -737,6 +741,7 @@ class _Pipeline:
             summary.cut += rec.detections.cut
             summary.cut_frames += 1
         frame, detections = rec.frame, rec.detections
+        stamp_ns = self.frame_clock.stamp_ns(frame)
         if self.metrics_writer is not None:
             row, index_of = self.row, self.index_of
             for i in range(len(row)):
@@ -745,6 +750,7 @@ class _Pipeline:
                 row[index_of[column]] = f"{v:.9f}"
             row[index_of["Number of MECs on screen"]] = len(detections)
             row[index_of["Frame"]] = frame.index
+            row[index_of["Frame Time (s)"]] = seconds_text(stamp_ns)
             row[index_of["Capture Timestamp (ns)"]] = frame.timestamp_ns
             row[index_of["Dropped Frames"]] = dropped
             row[index_of["Candidates Cut"]] = detections.cut
@@ -752,17 +758,18 @@ class _Pipeline:
                 row[index_of["Exposure Phase Error (s)"]] = f"{self.phase_error_ns / 1e9:.9f}"
             self.metrics_writer.writerow(row)
         if self.detections_writer is not None and len(detections):
+            when = seconds_text(stamp_ns)
             if rec.track_ids is None:
                 self.detections_writer.writerows(
-                    (frame.index, f"{x:.3f}", f"{y:.3f}", f"{r:.3f}")
+                    (frame.index, when, f"{x:.3f}", f"{y:.3f}", f"{r:.3f}")
                     for (x, y), r in zip(detections.centres.tolist(), detections.radii.tolist()))
             else:
                 self.detections_writer.writerows(
-                    (frame.index, f"{x:.3f}", f"{y:.3f}", f"{r:.3f}", i)
+                    (frame.index, when, f"{x:.3f}", f"{y:.3f}", f"{r:.3f}", i)
                     for (x, y), r, i in zip(detections.centres.tolist(), detections.radii.tolist(),
                                             rec.track_ids.tolist()))
         if self.mcap is not None:  # the frame's ROS 2 messages (off the latency path: the pattern is out)
-            self.mcap.write(self.mcap_clock.stamp_ns(frame), image=frame.image, detections=detections,
+            self.mcap.write(stamp_ns, image=frame.image, detections=detections,
                             track_ids=rec.track_ids, pattern=shown,
                             metrics={**values, "Frame": frame.index, "Particles": len(detections),
                                      "Dropped Frames": dropped, "Candidates Cut": detections.cut})
@@ -770,8 +777,8 @@ class _Pipeline:
             self._publish(rec, latency_ns, dropped)
         return any(o.exit_requested for o in self.outputs)
 
-    def _record(self, image: np.ndarray) -> None:
-        """Start, feed or stop the panel's recording of the input frames.
+    def _record(self, frame: Any) -> None:
+        """Start, feed or stop the panel's recording of the input frames, each at its true time.
 
         A recording that fails (its file cannot be opened or written) stops with a message in the
         log and the summary; the run and its light go on.
@@ -785,7 +792,9 @@ class _Pipeline:
             try:
                 from .record import Recorder
 
-                self.recorder = Recorder(path, fps=self.config.run.fps or 30.0)
+                clock = self.frame_clock
+                self.recorder = Recorder(path, fps=self.config.run.fps or self.camera_fps or 30.0,
+                                         unix_offset_ns=clock.offset_ns if clock.live else None)
             except Exception as exc:  # noqa: BLE001 - no recording may stop the light
                 self.record_wanted = False
                 self._recording_failed(entry, exc)
@@ -793,7 +802,8 @@ class _Pipeline:
             self.recording = entry
         if self.recorder is not None:
             try:
-                self.recorder.write(image)
+                self.recorder.write(frame.image, time_ns=self.frame_clock.source_ns(frame),
+                                    exposure_ns=frame.exposure_ns, analogue_gain=frame.analogue_gain)
             except Exception as exc:  # noqa: BLE001 - no recording may stop the light
                 self.record_wanted = False
                 self._recording_failed(self.recording, exc)
@@ -931,7 +941,7 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
         if rc.metrics:
             metrics_writer = stack.enter_context(_open_csv(rc.metrics, columns))
         if rc.detections:
-            header = ["frame", "x", "y", "radius"] + (["track_id"] if tracker is not None else [])
+            header = ["frame", "time", "x", "y", "radius"] + (["track_id"] if tracker is not None else [])
             detections_writer = stack.enter_context(_open_csv(rc.detections, header))
         tracking = ("" if tracker is None else
                     ", tracking" + (" with prediction" if tc.predict else "")
@@ -949,11 +959,9 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
         pipeline = _Pipeline(config, detector, tracker, source, calibration, outputs, metrics_writer,
                              detections_writer, columns, summary, buffers=1 if rc.mode == "single" else 3)
         if rc.mcap:
-            from .mcap_out import FrameClock, McapLog
+            from .mcap_out import McapLog
 
             pipeline.mcap = stack.enter_context(McapLog(rc.mcap))
-            pipeline.mcap_clock = FrameClock(live=pipeline.frame_interval is None,
-                                             interval_s=pipeline.frame_interval or 0.0)
         stack.callback(pipeline.stop_recording, wait=True)  # a recording is finished however the run ends
         if panel is not None:
             pipeline.panel = _serve_panel(panel, pipeline, stop, log)
@@ -1015,13 +1023,18 @@ def _serve_panel(panel: Any, pipeline: _Pipeline, stop: "StopFlag", log: TextIO)
 
 
 def claim_recording_path(base: Path, *, limit: int = 10000) -> Path:
-    """The first of ``base``, ``base-2``, ``base-3``, ... (same suffix) that does not exist, created empty.
+    """The first of ``base``, ``base-2``, ``base-3``, ... (same suffix) that does not exist, nor its
+    sidecar CSV (:func:`~antiscatter.record.recorder.sidecar_path`), created empty.
 
     Created exclusively (``O_EXCL``), so no recording ever overwrites a file, and its folder's
     writability is known before the loop starts it.  OSError when it cannot be created.
     """
+    from .record.recorder import sidecar_path
+
     for n in range(1, limit + 1):
         path = base if n == 1 else base.with_name(f"{base.stem}-{n}{base.suffix}")
+        if sidecar_path(path).exists():
+            continue
         try:
             os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644))
         except FileExistsError:

@@ -53,7 +53,7 @@ def test_run_track_writes_track_ids_and_evaluate_scores_them(tmp_path, cli):
                  "--detections", str(tmp_path / "d.csv"), "--metrics", str(tmp_path / "m.csv"))
     assert result.code == 0, result.err
     rows = list(csv.DictReader((tmp_path / "d.csv").open()))
-    assert list(rows[0]) == ["frame", "x", "y", "radius", "track_id"]
+    assert list(rows[0]) == ["frame", "time", "x", "y", "radius", "track_id"]
     assert all(int(r["track_id"]) >= 1 for r in rows)
     metrics = list(csv.DictReader((tmp_path / "m.csv").open()))
     assert all(float(r["Tracking Duration (s)"]) > 0 for r in metrics)

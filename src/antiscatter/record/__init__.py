@@ -1,5 +1,5 @@
 """Lossless recording: frames into a bounded RAM buffer, FFV1 in Matroska encoded in a worker thread."""
 
-from .recorder import Recorder, RecorderFull, pixel_format
+from .recorder import SIDECAR_COLUMNS, TIME_BASE, Recorder, RecorderFull, pixel_format, sidecar_path
 
-__all__ = ["Recorder", "RecorderFull", "pixel_format"]
+__all__ = ["Recorder", "RecorderFull", "pixel_format", "sidecar_path", "SIDECAR_COLUMNS", "TIME_BASE"]

@@ -15,8 +15,9 @@ from ..errors import UsageError, WriteError, check_output_path
 from ..outputs import open_output
 from ..runtime import Pacer, StopFlag
 from ..sources import open_source
+from ..sources.base import FrameClock
 from .keys import TerminalKeys
-from .recorder import Recorder, RecorderFull
+from .recorder import Recorder, RecorderFull, sidecar_path
 
 __all__ = ["RecordRequest", "record"]
 
@@ -68,6 +69,7 @@ def record(request: RecordRequest, *, log: TextIO | None = None, out: TextIO | N
     if request.out.suffix.lower() != ".mkv" and not request.out.is_dir():
         raise UsageError(f"{request.out}: allowed a .mkv file (FFV1 in Matroska)")
     check_output_path(request.out, "output", overwrite=request.overwrite)
+    check_output_path(sidecar_path(request.out), "output's sidecar", overwrite=request.overwrite)
     if request.mcap is not None:
         from ..mcap_out import require_mcap
 
@@ -84,15 +86,18 @@ def record(request: RecordRequest, *, log: TextIO | None = None, out: TextIO | N
             _refuse_buffer(request, source.size[0] * source.size[1])
         white = np.full((800, 1280), 255, np.uint8)
         black = np.zeros_like(white)
-        recorder = Recorder(request.out, fps=request.fps or source.fps or 30.0,
-                            buffer_bytes=buffer_bytes, overflow=request.overflow)
-        log_mcap = clock = None
+        # the frames' true time: a live source's monotonic clock mapped to UNIX time (the sidecar's
+        # unix_time_ns and the MCAP stamps, by one offset), a file's or the simulator's own
+        live = getattr(source, "live", False)
+        rate = request.fps or source.fps or 30.0
+        clock = FrameClock(live=live, interval_s=0.0 if live else 1.0 / rate)
+        recorder = Recorder(request.out, fps=rate, buffer_bytes=buffer_bytes, overflow=request.overflow,
+                            unix_offset_ns=clock.offset_ns if live else None)
+        log_mcap = None
         if request.mcap is not None:
-            from ..mcap_out import FrameClock, McapLog
+            from ..mcap_out import McapLog
 
             log_mcap = stack.enter_context(McapLog(request.mcap))
-            live = getattr(source, "live", False)
-            clock = FrameClock(live=live, interval_s=0.0 if live else 1.0 / (request.fps or source.fps or 30.0))
         keys = TerminalKeys()
         stack.callback(keys.close)
         state = {"light": request.light, "recording": not request.paused, "lamp_shown": None}
@@ -152,7 +157,8 @@ def record(request: RecordRequest, *, log: TextIO | None = None, out: TextIO | N
                 captured += 1
                 if state["recording"]:
                     try:
-                        recorder.write(frame.image)
+                        recorder.write(frame.image, time_ns=clock.source_ns(frame),
+                                       exposure_ns=frame.exposure_ns, analogue_gain=frame.analogue_gain)
                         recorded += 1
                         if log_mcap is not None:
                             log_mcap.write(clock.stamp_ns(frame), image=frame.image, metrics={
@@ -175,7 +181,7 @@ def record(request: RecordRequest, *, log: TextIO | None = None, out: TextIO | N
         finally:
             summary = recorder.close()
         seconds = time.monotonic() - started
-    what = failure.what if failure is not None else f"{request.out}: {summary.get('error', '')}"
+    what = failure.what if failure is not None else f"{summary.get('failed', request.out)}: {summary.get('error', '')}"
     if "error" in summary:  # the file's disk filled (perhaps while the last frames were encoded)
         failure, reason = failure or WriteError(what), "write failed"
     summary.update(captured=captured, reason=reason, message=message, wall_seconds=seconds)

@@ -15,11 +15,11 @@ from typing import Callable
 
 from ..detection import check_frame_size
 from ..errors import UsageError
-from .base import Frame, FrameSource
+from .base import Frame, FrameSource, frame_time_ns
 from .folder import FolderSource, frame_files, list_frames
 from .video import VideoSource, parse_crop
 
-__all__ = ["Frame", "FrameSource", "FolderSource", "VideoSource", "open_source",
+__all__ = ["Frame", "FrameSource", "frame_time_ns", "FolderSource", "VideoSource", "open_source",
            "list_frames", "frame_files", "parse_crop", "SOURCE_KINDS"]
 
 SOURCE_KINDS = ("sim", "camera", "webcam:N", "<folder of frames>", "<video file>")

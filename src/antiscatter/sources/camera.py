@@ -121,7 +121,8 @@ class CameraSource(FrameSource):
     queued one.  Frames carry the middle of their exposure, from the sensor
     timestamp (``SensorTimestamp`` metadata, ns, the ``CLOCK_MONOTONIC`` clock of
     ``time.monotonic_ns()``: the end of the exposure) less half the ``ExposureTime``,
-    and the exposure's length, when the camera reports them.
+    and the exposure's length, when the camera reports them; the same time is the frame's
+    ``media_time_ns`` (its true time, written into recordings and CSVs), with ``AnalogueGain``.
     """
 
     name = "camera"
@@ -184,8 +185,13 @@ class CameraSource(FrameSource):
         # global-shutter IMX296 (the ISP's start-of-frame interrupt; picamera2 issue 821):
         # the frame's time is the exposure's middle, ExposureTime (us) before that by half
         exposure_ns = int(round(float(metadata.get("ExposureTime") or 0) * 1e3)) if stamp else 0
-        frame = (Frame(image, self._count, int(stamp) - exposure_ns // 2, exposure_ns) if stamp
-                 else Frame(image, self._count, self.now_ns()))
+        gain = float(metadata.get("AnalogueGain") or 0.0)
+        if stamp:  # the sensor's time is the frame's true time (media_time_ns): the same clock
+            middle = int(stamp) - exposure_ns // 2
+            frame = Frame(image, self._count, middle, exposure_ns, media_time_ns=middle, analogue_gain=gain)
+        else:  # no sensor time: the read time, the same clock
+            stamp = self.now_ns()
+            frame = Frame(image, self._count, stamp, media_time_ns=stamp, analogue_gain=gain)
         if pooled is not None:
             frame = dataclasses.replace(frame, pooled=pooled)
         self._count += 1

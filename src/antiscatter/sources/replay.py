@@ -52,6 +52,7 @@ class ReplaySource(FrameSource):
             delay = stamp - self.now_ns()
             if delay > 0:
                 time.sleep(delay / 1e9)
-        frame = Frame(self.images[self._count % len(self.images)], self._count, stamp)
+        frame = Frame(self.images[self._count % len(self.images)], self._count, stamp,
+                      media_time_ns=stamp if self.live else None)
         self._count += 1
         return frame

@@ -16,6 +16,8 @@ class SimulatorSource(FrameSource):
     preset: simulator preset name (``seed`` is the report's bubble model).
     seed: seed of the numpy Generator driving the scene.
     size: (width, height), the preset's own when None.
+    Each frame's ``media_time_ns`` is the scene's own time (frame ``i`` at ``i / fps`` s), however
+    fast the frames are drawn.
     """
 
     name = "sim"
@@ -31,6 +33,6 @@ class SimulatorSource(FrameSource):
         if self._count > 0:
             self.scene.step()
         image = self.scene.render()
-        frame = Frame(image, self._count, self.now_ns())
+        frame = Frame(image, self._count, self.now_ns(), media_time_ns=round(self._count * 1e9 / self.fps))
         self._count += 1
         return frame

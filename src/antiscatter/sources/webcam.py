@@ -34,7 +34,8 @@ class WebcamSource(FrameSource):
         ok, image = self._cap.read()
         if not ok:
             raise RuntimeError(f"webcam:{self.index}: the device stopped delivering frames")
-        frame = Frame(image, self._count, self.now_ns())
+        stamp = self.now_ns()  # read time: the device's own is not known here
+        frame = Frame(image, self._count, stamp, media_time_ns=stamp)
         self._count += 1
         return frame
 
