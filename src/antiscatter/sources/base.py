@@ -66,6 +66,7 @@ class FrameSource:
     size: tuple[int, int] = (0, 0)  # (width, height) of delivered frames
     fps: float = 0.0  # nominal rate, 0 when unknown
     live: bool = False  # frames come whether or not they are taken (a camera): may be dropped
+    synthetic: bool = False  # frames are drawn when read (the simulator): their drawing is not timed as capture
     damaged: str = ""  # why the source ended before its declared end (a file cut short), "" when it did not
 
     def read(self) -> Frame | None:
