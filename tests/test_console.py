@@ -27,9 +27,9 @@ def _bar_drawn(text: str) -> bool:
     return re.search(r"\r(?!\n)", text) is not None and "|" in text
 
 
-def _command(args: list[str], cwd: Path, *, tty: bool) -> tuple[int, str, str]:
-    """``antiscatter ARGS`` in a subprocess, stdout a pipe, stderr a terminal (a pty) or a pipe;
-    returns (exit code, stdout, stderr)."""
+def _command(args: list[str], cwd: Path, *, tty: bool, screen: tuple[int, int] = (100, 40)) -> tuple[int, str, str]:
+    """``antiscatter ARGS`` in a subprocess, stdout a pipe, stderr a terminal (a pty of ``screen``
+    columns x rows) or a pipe; returns (exit code, stdout, stderr)."""
     env = {**os.environ, "COLUMNS": "100", "LINES": "40"}
     if not tty:
         proc = subprocess.run([sys.executable, "-m", "antiscatter", *args], cwd=cwd, capture_output=True,
@@ -40,7 +40,7 @@ def _command(args: list[str], cwd: Path, *, tty: bool) -> tuple[int, str, str]:
     import termios
 
     master, slave = os.openpty()
-    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 100, 0, 0))  # a terminal 100 columns wide
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", screen[1], screen[0], 0, 0))
     proc = subprocess.Popen([sys.executable, "-m", "antiscatter", *args], cwd=cwd, stdout=subprocess.PIPE,
                             stderr=slave, env=env)
     os.close(slave)
@@ -97,6 +97,13 @@ def test_a_long_command_shows_progress_on_a_terminal_and_not_when_piped(name, si
     assert code == 0, err
     assert BAR not in err and "%|" not in err and "it/s" not in err, f"a bar on a pipe: {err!r}"
     assert BAR not in out_piped
+
+
+def test_a_terminal_that_reports_no_size_gets_a_bar_all_the_same(tmp_path):
+    """A pty opened without a size (``script``, some CI runners): tqdm hid every bar at 0 rows."""
+    code, out, err = _command(["simulate", str(tmp_path / "s"), "--frames", "6", "--size", "96x64"], tmp_path,
+                              tty=True, screen=(0, 0))
+    assert code == 0 and _bar_drawn(err) and "6/6" in err, err
 
 
 def test_quiet_silences_the_bar_and_the_notes_but_not_the_results_or_errors(tmp_path):

@@ -1017,10 +1017,6 @@ def _twin(args: argparse.Namespace) -> int:
         extra["calibration_error"] = mapping_error_px(calibration.homography,
                                                       geometry.plane_mapping(calibration.working_depth_m),
                                                       geometry.camera_size, geometry.projector_size)
-        if not args.json:
-            print(f"calibration error at {calibration.working_depth_m:.2f} m: "
-                  f"mean {extra['calibration_error']['mean_px']:.2f}, max {extra['calibration_error']['max_px']:.2f} "
-                  "projector px")
     from .console import progress, write
 
     configurations = default_runs(args.baseline_m)
@@ -1028,6 +1024,10 @@ def _twin(args: argparse.Namespace) -> int:
         print(f"antiscatter twin: preset {args.preset} (seed {args.seed}), {args.frames} frames a configuration; "
               f"camera {size[0]}x{size[1]} at {geometry.camera_hz:g} Hz, projector {projector[0]}x{projector[1]} at "
               f"{geometry.projector_hz:g} Hz; baseline {args.baseline_m:g} m, latency {args.latency_ms:g} ms")
+        if calibration is not None:
+            error = extra["calibration_error"]
+            print(f"calibration {args.calibration}: error at {calibration.working_depth_m:.2f} m: mean "
+                  f"{error['mean_px']:.2f}, max {error['max_px']:.2f} projector px")
         print("removed: share of the particles' backscatter the pattern withholds; kept: share of the scene light "
               "it keeps; steady: the same from that frame on (tracks settled)")
         print(_TWIN_HEADER)

@@ -14,6 +14,7 @@ import contextlib
 import json
 import logging
 import math
+import os
 import sys
 from typing import Any, Iterable, Iterator, TypeVar
 
@@ -120,8 +121,22 @@ def progress(iterable: Iterable[T] | None = None, *, total: int | None = None, d
     """
     from tqdm import tqdm
 
-    return tqdm(iterable, total=total, desc=desc, unit=unit, leave=leave, file=sys.stderr,
-                disable=not (enabled and progress_enabled()), dynamic_ncols=True)
+    show = enabled and progress_enabled()
+    return tqdm(iterable, total=total, desc=desc, unit=unit, leave=leave, file=sys.stderr, disable=not show,
+                **(_screen() if show else {}))
+
+
+def _screen() -> dict[str, Any]:
+    """tqdm's size settings: follow the terminal's size, or 80 x 20 where it reports none (a pty
+    opened without a size, as ``script`` and some CI runners do: tqdm hides every bar at 0 rows)."""
+    try:
+        size = os.get_terminal_size(sys.stderr.fileno())
+        columns, lines = size.columns, size.lines
+    except (OSError, ValueError, AttributeError):
+        columns = lines = 0
+    if columns and lines:
+        return {"dynamic_ncols": True}
+    return {"ncols": columns or 80, "nrows": lines or 20}
 
 
 def write(line: str) -> None:
