@@ -24,6 +24,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from .console import progress
 from .detection import DETECTORS, Pooled, make_detector
 from .detection.contrast import downsample, label
 from .runtime import time_stages
@@ -150,7 +151,7 @@ def simulator_pool(width: int, height: int, preset: str, *, distinct: int = 20, 
     """``distinct`` BGR frames of the simulator's ``preset`` at ``width`` x ``height``, 3 steps apart."""
     scene = make_scene(preset, rng=np.random.default_rng(seed), size=(width, height))
     pool = []
-    for i in range(distinct):
+    for i in progress(range(distinct), desc=f"render {preset} {width}x{height}", leave=False):
         if i:
             for _ in range(3):
                 scene.step()
@@ -233,7 +234,7 @@ def _bench_pool(built: dict[str, Any], pool: list[np.ndarray], title: str, frame
     for name in order:  # warm-up: first calls allocate, learnt backgrounds settle (steady state)
         for image in pool:
             built[name].detect(image)
-    for k in range(frames):
+    for k in progress(range(frames), desc=f"bench {title} {width}x{height}"):  # (drawn between frames, untimed)
         image = pool[pool_index(distinct + k, distinct)]
         t0 = time.perf_counter_ns()
         np.copyto(copy_target, image)
@@ -303,7 +304,7 @@ def bench_modes(*, frames: int = 300, sizes: tuple[tuple[int, int, str], ...] = 
         # played forwards and back (:func:`pool_index`): round in a cycle every particle jumped at once
         # each 30 frames -- the detector took it for the view turning and the tracker lost every track
         pool += pool[-2:0:-1]
-        for mode in MODES:
+        for mode in progress(MODES, desc=f"bench modes {width}x{height}", unit="mode"):
             overrides: dict[str, Any] = {"detector": {"name": detector}, "output": {"outputs": ("none",)},
                                          "run": {"frames": frames, "mode": mode, "fps": fps}}
             if vehicle:

@@ -26,6 +26,7 @@ from typing import Callable
 import cv2
 import numpy as np
 
+from .console import progress
 from .errors import UsageError
 
 __all__ = ["Calibration", "decode_plane", "calibrate_planes", "load_calibration", "TwinRig", "HardwareRig",
@@ -51,7 +52,7 @@ def decode_plane(capture: Callable[[np.ndarray], np.ndarray], projector_size: tu
     Returns ((N, 2) camera pixels, (N, 2) projector pixels) of the pixels that decoded.
     """
     code, patterns, white, black = gray_code_patterns(projector_size)
-    captures = [_grey(c) for c in map(capture, patterns)]
+    captures = [_grey(capture(p)) for p in progress(patterns, desc="calibrate", unit="pattern", leave=False)]
     lit, dark = _grey(capture(white)), _grey(capture(black))
     code.setWhiteThreshold(white_threshold)
     code.setBlackThreshold(black_threshold)
@@ -421,12 +422,13 @@ def calibrate_board(captures: list[Callable[[np.ndarray], np.ndarray]], *, board
     """
     code, patterns, white, black = gray_code_patterns(projector_size)
     objects, cameras, projectors = [], [], []
-    for capture in captures:
-        lit = capture(white)
+    for k, capture in enumerate(captures):
+        lit = capture(white)  # (a hardware rig asks for the pose here: no bar is drawn while it waits)
         corners = board_corners(lit, board)
         if corners is None:
             continue
-        images = [capture(p) for p in patterns]
+        images = [capture(p) for p in progress(patterns, desc=f"calibrate pose {k + 1}", unit="pattern",
+                                               leave=False)]
         # the board's black squares return little light: a lower lit-dark threshold than a white target's
         column, row = decode_dense(images, lit, capture(black), projector_size, black_threshold=15)
         projected = projector_corners(corners, column, row, window=window)

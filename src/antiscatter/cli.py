@@ -4,14 +4,17 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import logging
 import math
 import signal
 import sys
+import time
 from typing import Any, Sequence
 
 import numpy as np
 
 from . import __version__
+from .console import json_text
 from .errors import RunError, Terminated, UsageError, WriteError, check_output_path
 
 __all__ = ["main", "build_parser"]
@@ -35,6 +38,25 @@ def _detector_help() -> str:
     return "; ".join(f"{name}: {entry.summary}" for name, entry in sorted(DETECTORS.items()))
 
 
+def _param_help() -> str:
+    """Every detector's parameters by name, from the registry (the default detector first)."""
+    from dataclasses import fields
+
+    from .detection import DETECTORS
+    names = sorted(DETECTORS, key=lambda n: (n != DEFAULT_DETECTOR, n))
+    return "; ".join(f"{name}: {', '.join(f.name for f in fields(DETECTORS[name].params))}" for name in names)
+
+
+def _add_verbosity(parser: argparse.ArgumentParser, default: Any) -> None:
+    """``-q/--quiet`` and ``-v/--verbose`` on ``parser``: before the command (``default`` 0) or after it
+    (``default`` SUPPRESS, so a command's parser keeps the value given before it)."""
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("-q", "--quiet", dest="verbosity", action="store_const", const=-1, default=default,
+                       help="only results, warnings and errors: no progress bars or notes")
+    group.add_argument("-v", "--verbose", dest="verbosity", action="store_const", const=1, default=default,
+                       help="also debug records")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .levels import DIM_REST, LEVELS, REST
     from .probe import MIN_WORTH
@@ -46,6 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "camera frame and light everything except them with a projector.",
         epilog="Run 'antiscatter COMMAND --help' for each command's options.")
     parser.add_argument("--version", action="version", version=f"antiscatter {__version__}")
+    _add_verbosity(parser, 0)
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
 
     run = commands.add_parser(
@@ -67,7 +90,7 @@ def build_parser() -> argparse.ArgumentParser:
                           "./sim for that folder), camera (Picamera2), webcam:N, "
                           "a folder of frames (<int>.png, or images named in order: png, jpg, tif, bmp), or a video file")
     run.add_argument("--config", metavar="FILE.toml", help="TOML file with [source], [detector], "
-                     "[detector.NAME], [pattern], [output], [run] sections; flags override it")
+                     "[detector.NAME], [track], [light], [pattern], [output], [run] sections; flags override it")
     g = run.add_argument_group("source")
     g.add_argument("--crop", metavar="X0:X1,Y0:Y1", help="keep columns X0..X1-1 and rows Y0..Y1-1 of a video")
     g.add_argument("--loop", action="store_true", default=None, help="play a video or folder again when it ends")
@@ -91,8 +114,8 @@ def build_parser() -> argparse.ArgumentParser:
     g = run.add_argument_group("detector")
     g.add_argument("--detector", help=f"detector name ({_detector_help()})")
     g.add_argument("-p", "--param", action="append", metavar="KEY=VALUE", default=[],
-                   help="a parameter of the chosen detector, e.g. threshold=180 or equalise=true "
-                        "(seed: threshold, blur_kernel, canny_sigma, equalise); repeatable")
+                   help="a parameter of the chosen detector, e.g. k=6 (contrast) or threshold=180 (seed); "
+                        f"repeatable. Parameters: {_param_help()}")
     g = run.add_argument_group("tracking")
     g.add_argument("--track", action="store_true", default=None,
                    help="track particles (Kalman) and draw holes from the tracks; coasting keeps a hole on a "
@@ -140,8 +163,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "of 3 rows of 3 numbers (default: identity scaled to the projector size)")
     g = run.add_argument_group("output and run")
     g.add_argument("-o", "--output", action="append", metavar="NAME",
-                   help="light output, repeatable: framebuffer[:/dev/fbN], window, files:DIR, "
-                        "files:NAME.mkv, none, auto (default: a window where a display exists, else none)")
+                   help="light output, repeatable: framebuffer[:/dev/fbN], kms (the projector through DRM/KMS, "
+                        "flips timed), window, files:DIR, files:NAME.mkv, none, auto (default: a window where a "
+                        "display exists, else none)")
     g.add_argument("--frames", type=int, help="stop after N frames (default 0 = no limit)")
     g.add_argument("--fps", type=float, help="pace the loop at F frames per second (default 0 = as fast as possible)")
     g.add_argument("--nice", type=int, help="process niceness, -20 (highest priority) .. 19")
@@ -284,12 +308,15 @@ def build_parser() -> argparse.ArgumentParser:
                     "Keys on a terminal: l light on/off, r record/pause, e exit. Ctrl-C and SIGTERM leave a "
                     "valid file holding every frame captured. The file plays back as a source of 'run'.",
         epilog="Examples:\n"
-               "  antiscatter record tank.mkv --source camera --size 728x544 --fps 60 --light on "
-               "--output framebuffer\n"
-               "  antiscatter record test.mkv --source sim --seconds 5 --web 8080",
+               "  antiscatter record camera tank.mkv --size 728x544 --fps 60 --light on --output framebuffer\n"
+               "  antiscatter record sim test.mkv --seconds 5 --web 8080\n"
+               "  antiscatter record test.mkv --source sim --seconds 5   (the older form)",
         formatter_class=argparse.RawDescriptionHelpFormatter)
-    rec.add_argument("out", help="the .mkv file to write")
-    rec.add_argument("--source", default="sim", help="camera, webcam:N, a video file or sim (default sim)")
+    rec.add_argument("source", nargs="?", default=None, metavar="SOURCE", help="camera, webcam:N, a video file "
+                     "or sim (default sim), as run takes it")
+    rec.add_argument("out", metavar="OUT.mkv", help="the .mkv file to write")
+    rec.add_argument("--source", dest="source_option", metavar="SOURCE", help="the source as an option (the older "
+                     "form, still accepted): the same as the positional SOURCE")
     rec.add_argument("--size", metavar="WxH", help="capture size (camera, webcam, sim)")
     rec.add_argument("--fps", type=float, default=30.0, help="capture rate; paces sim and video (default 30)")
     rec.add_argument("--seconds", type=float, default=0.0, help="stop after S seconds (default: no limit)")
@@ -489,7 +516,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     from .service import add_service_parser
     add_service_parser(commands)
+    for command in commands.choices.values():  # also after the command: antiscatter evaluate ... --quiet
+        _add_verbosity(command, argparse.SUPPRESS)
     return parser
+
+
+def _logger(command: str):
+    """The logger of a command's diagnostics (``antiscatter.COMMAND``): notes on stderr, not its results."""
+    from .console import LOGGER
+
+    return LOGGER.getChild(command)
 
 
 def _size_arg(text: str, flag: str) -> tuple[int, int]:
@@ -534,7 +570,6 @@ def _detector_from(args: argparse.Namespace):
 
 
 def _evaluate(args: argparse.Namespace) -> int:
-    import json
     from pathlib import Path
 
     from .evaluate import Matching, evaluate_pairs, summarise
@@ -588,13 +623,16 @@ def _evaluate(args: argparse.Namespace) -> int:
         if args.twin_long_seeds < 1:
             raise UsageError(f"--twin-long-seeds {args.twin_long_seeds}: allowed >= 1")
         report = check_output_path(args.report, "--report")  # before the long work; no folder is made
+        if not real:  # (after every check: bad input stays one line)
+            _logger("evaluate").warning(f"no real image pairs in {data_dir / 'msrb'} (--data DIR): the scoreboard's "
+                                        "real-image rows are left out")
         bench_results = None
         if args.bench_frames:  # BGR frames (files, the simulator, webcams) and the Pi camera's Y plane
             from .bench import bench
             bench_results = [bench(detectors=detectors, frames=args.bench_frames, input=kind) for kind in ("bgr", "y")]
         markdown, data = scoreboard(scenarios=scenarios, catalogue_version=version, detectors=detectors,
                                     real_pairs=real, matching=m, bench_results=bench_results,
-                                    frames_limit=args.frames, log=lambda t: print(t, file=sys.stderr),
+                                    frames_limit=args.frames, log=_logger("evaluate").info,
                                     twin_frames=args.twin_frames, twin_seeds=args.twin_seeds,
                                     twin_long_frames=args.twin_long_frames, twin_long_seeds=args.twin_long_seeds,
                                     heldout=args.heldout_frames != 0, heldout_frames=args.heldout_frames or None,
@@ -602,8 +640,8 @@ def _evaluate(args: argparse.Namespace) -> int:
         from .writing import write_whole
 
         write_whole(report, markdown.encode())
-        print(json.dumps(data, indent=2) if args.json else markdown)
-        print(f"wrote {report}", file=sys.stderr)
+        print(json_text(data) if args.json else markdown)
+        _logger("evaluate").info(f"wrote {report}")
         return 0
     extra: dict = {}
     if args.track and not (args.scenario or args.folder):
@@ -676,8 +714,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     if args.plot:
         plot_evaluation(args.plot, scores, sweep, title=title)
     if args.json:
-        print(json.dumps({"input": title, "overall": summary, **extra, "frames": [s.row() for s in scores]},
-                         indent=2))
+        print(json_text({"input": title, "overall": summary, **extra, "frames": [s.row() for s in scores]}))
     else:
         print(format_summary(summary, title=title))
         if "tracking" in extra:
@@ -705,7 +742,6 @@ def _data_dir(args: argparse.Namespace):
 
 def _evaluate_heldout(args: argparse.Namespace, m) -> int:
     """``evaluate --heldout``: the detector and seed on the held-out material, or its export."""
-    import json
     import time
     from pathlib import Path
 
@@ -751,15 +787,14 @@ def _evaluate_heldout(args: argparse.Namespace, m) -> int:
         results.append(result)
     title = f"detector {name}" + (f" ({', '.join(args.param)})" if args.param else "") + " and seed"
     if args.json:
-        print(json.dumps({"input": f"held-out {args.heldout}", "detector": name, "params": list(args.param),
-                          "matching": vars(m), "splits": results}, indent=2))
+        print(json_text({"input": f"held-out {args.heldout}", "detector": name, "params": list(args.param),
+                         "matching": vars(m), "splits": results}))
     else:
         print(format_heldout(results, title=title))
     return 0
 
 
 def _bench(args: argparse.Namespace) -> int:
-    import json
 
     from .bench import bench, format_bench, plot_bench
     from .detection import DETECTORS, check_threads, detector_entry
@@ -788,14 +823,14 @@ def _bench(args: argparse.Namespace) -> int:
 
         modes = bench_modes(frames=args.frames, sizes=tuple(sizes), detector=names[0] if args.detectors else "contrast",
                             vehicle=args.vehicle)
-        print(json.dumps({"machine": machine_description(), "modes": modes}, indent=2) if args.json
+        print(json_text({"machine": machine_description(), "modes": modes}) if args.json
               else format_modes(modes))
         return 0
     result = bench(detectors=names, frames=args.frames, threads=args.threads, sizes=tuple(sizes),
                    input=args.input, source=args.source, distinct=args.distinct)
     if args.plot:
         plot_bench(result, args.plot)
-    print(json.dumps(result.as_dict(), indent=2) if args.json else format_bench(result))
+    print(json_text(result.as_dict()) if args.json else format_bench(result))
     return 0
 
 
@@ -933,7 +968,6 @@ def _calibrate_board(args: argparse.Namespace, size: tuple[int, int], projector:
 
 def _twin(args: argparse.Namespace) -> int:
     import dataclasses
-    import json
 
     from .config import parse_size
     from .detection import check_frame_size
@@ -985,30 +1019,36 @@ def _twin(args: argparse.Namespace) -> int:
         extra["calibration_error"] = mapping_error_px(calibration.homography,
                                                       geometry.plane_mapping(calibration.working_depth_m),
                                                       geometry.camera_size, geometry.projector_size)
-        if not args.json:
-            print(f"calibration error at {calibration.working_depth_m:.2f} m: "
-                  f"mean {extra['calibration_error']['mean_px']:.2f}, max {extra['calibration_error']['max_px']:.2f} "
-                  "projector px")
+    from .console import progress, write
+
+    configurations = default_runs(args.baseline_m)
+    if not args.json:
+        print(f"antiscatter twin: preset {args.preset} (seed {args.seed}), {args.frames} frames a configuration; "
+              f"camera {size[0]}x{size[1]} at {geometry.camera_hz:g} Hz, projector {projector[0]}x{projector[1]} at "
+              f"{geometry.projector_hz:g} Hz; baseline {args.baseline_m:g} m, latency {args.latency_ms:g} ms")
+        if calibration is not None:
+            error = extra["calibration_error"]
+            print(f"calibration {args.calibration}: error at {calibration.working_depth_m:.2f} m: mean "
+                  f"{error['mean_px']:.2f}, max {error['max_px']:.2f} projector px")
+        print("removed: share of the particles' backscatter the pattern withholds; kept: share of the scene light "
+              "it keeps; steady: the same from that frame on (tracks settled)")
+        print(_TWIN_HEADER)
     runs = []
-    for run in default_runs(args.baseline_m):
-        run = dataclasses.replace(run, flash_level=args.flash_level, dim_level=args.dim_level, rest=args.rest,
-                                  min_worth=args.min_worth if run.min_worth else 0.0, grow=args.grow,
-                                  grow_from=args.grow_from)
-        result = simulate_loop(run, geometry=geometry, preset=args.preset, frames=args.frames, seed=args.seed,
-                               latency_ms=args.latency_ms, calibration=calibration)
-        result.pop("series")
-        runs.append(result)
-        if not args.json:
-            levels = f"{result['levels']} levels" if result["levels"] else ""  # dim and pulse only
-            if result["min_worth"] == 0:
-                levels += ", every hole"  # probing without the holes' worth rule
-            if result["frames_processed"] < args.frames and result["detector"]:  # a free-running camera's skips
-                levels = ", ".join(filter(None, (levels, f"{result['frames_processed']} frames read")))
-            print(f"{result['detector'] or 'full light':<10} {result['mapping']:<11} {result['strategy']:<6} "
-                  f"predict {str(result['predict']).lower():<5} {levels:<34} "
-                  f"removed {result['backscatter_removed']:.3f}  "
-                  f"kept {result['scene_light_kept']:.3f}  (from frame {result['steady_from_frame']}: "
-                  f"{result['backscatter_removed_steady']:.3f} / {result['scene_light_kept_steady']:.3f})")
+    with progress(total=len(configurations) * args.frames, desc="twin") as bar:
+        for run in configurations:
+            run = dataclasses.replace(run, flash_level=args.flash_level, dim_level=args.dim_level, rest=args.rest,
+                                      min_worth=args.min_worth if run.min_worth else 0.0, grow=args.grow,
+                                      grow_from=args.grow_from)
+            result = simulate_loop(run, geometry=geometry, preset=args.preset, frames=args.frames, seed=args.seed,
+                                   latency_ms=args.latency_ms, calibration=calibration, on_frame=bar.update)
+            result.pop("series")
+            runs.append(result)
+            if not args.json:
+                write(format_twin_row(result, args.frames))
+    if not args.json and args.baseline_m > 0 and any(r["mapping"] == "probe" for r in runs):
+        print(f"at a {args.baseline_m:g} m baseline one mapping fits one distance only: holes drawn for the "
+              "calibration's working distance miss particles nearer or farther (the calibrated rows); depth "
+              "probing (the probe rows) finds each particle's distance; 0 = co-located through a beamsplitter")
     if args.plot:
         from .twin import plot_curves
 
@@ -1017,16 +1057,34 @@ def _twin(args: argparse.Namespace) -> int:
         if not args.json:
             print(f"wrote {args.plot}")
     if args.json:
-        print(json.dumps({"preset": args.preset, "frames": args.frames, "baseline_m": args.baseline_m,
-                          "latency_ms": args.latency_ms, "camera_hz": geometry.camera_hz,
-                          "projector_hz": geometry.projector_hz, "hfov_deg": geometry.hfov_deg,
-                          "throw_ratio": geometry.throw_ratio, "background_m": geometry.background_m,
-                          "camera_phase": args.camera_phase,
-                          "camera_lock": args.camera_lock, "display_lag_ms": args.display_lag_ms,
-                          "projector_aperture_mm": args.projector_aperture_mm,
-                          "projector_focus_m": args.projector_focus_m or geometry.background_m,
-                          **extra, "runs": runs}, indent=2))
+        print(json_text({"preset": args.preset, "frames": args.frames, "baseline_m": args.baseline_m,
+                         "latency_ms": args.latency_ms, "camera_hz": geometry.camera_hz,
+                         "projector_hz": geometry.projector_hz, "hfov_deg": geometry.hfov_deg,
+                         "throw_ratio": geometry.throw_ratio, "background_m": geometry.background_m,
+                         "camera_phase": args.camera_phase,
+                         "camera_lock": args.camera_lock, "display_lag_ms": args.display_lag_ms,
+                         "projector_aperture_mm": args.projector_aperture_mm,
+                         "projector_focus_m": args.projector_focus_m or geometry.background_m,
+                         **extra, "runs": runs}))
     return 0
+
+
+#: Column titles of ``twin``'s table (see :func:`format_twin_row`).
+_TWIN_HEADER = (f"{'detector':<10} {'mapping':<10} {'strategy':<8} {'predict':<7} {'removed':>7} {'kept':>6}  "
+                f"{'steady from':>11} {'removed':>7} {'kept':>6}  notes")
+
+
+def format_twin_row(result: dict[str, Any], frames: int) -> str:
+    """One configuration's row of ``twin``'s table: removed and kept over all frames, then steady."""
+    notes = f"{result['levels']} levels" if result["levels"] else ""  # dim and pulse only
+    if result["min_worth"] == 0:
+        notes += ", every hole"  # probing without the holes' worth rule
+    if result["frames_processed"] < frames and result["detector"]:  # a free-running camera's skips
+        notes = ", ".join(filter(None, (notes, f"{result['frames_processed']} frames read")))
+    return (f"{result['detector'] or 'full light':<10} {result['mapping']:<10} {result['strategy']:<8} "
+            f"{'yes' if result['predict'] else 'no':<7} {result['backscatter_removed']:>7.3f} "
+            f"{result['scene_light_kept']:>6.3f}  {'frame ' + str(result['steady_from_frame']):>11} "
+            f"{result['backscatter_removed_steady']:>7.3f} {result['scene_light_kept_steady']:>6.3f}  {notes}").rstrip()
 
 
 def _record(args: argparse.Namespace) -> int:
@@ -1034,6 +1092,9 @@ def _record(args: argparse.Namespace) -> int:
 
     from .record.command import RecordRequest, record
 
+    if args.source is not None and args.source_option is not None:
+        raise UsageError(f"SOURCE {args.source} and --source {args.source_option}: give the source once")
+    source = next((s for s in (args.source, args.source_option) if s is not None), "sim")
     size = None
     if args.size:
         size = _size_arg(args.size, "--size")
@@ -1041,13 +1102,15 @@ def _record(args: argparse.Namespace) -> int:
                         ("--buffer-mb", args.buffer_mb)):
         if not (math.isfinite(value) and value >= 0):
             raise UsageError(f"{name} {value}: allowed a number >= 0")
-    request = RecordRequest(out=Path(args.out), source=args.source, size=size, fps=args.fps,
+    request = RecordRequest(out=Path(args.out), source=source, size=size, fps=args.fps,
                             seconds=args.seconds, frames=args.frames, light=args.light == "on",
                             paused=args.paused, outputs=tuple(args.output or ("none",)),
                             buffer_mb=args.buffer_mb, overflow=args.overflow, web=args.web or "",
                             colour=args.camera_colour, exposure_ms=args.camera_exposure_ms, gain=args.camera_gain,
                             overwrite=args.overwrite, mcap=Path(args.mcap) if args.mcap else None)
-    summary = record(request)
+    from .console import LOGGER, LogStream
+
+    summary = record(request, log=LogStream(LOGGER.getChild("record")))  # type: ignore[arg-type]
     if summary["reason"].startswith("stopped by SIGINT"):
         return 130
     if summary["reason"].startswith("stopped by SIGTERM"):
@@ -1097,7 +1160,9 @@ def _analyse(args: argparse.Namespace) -> int:
                                  plots=args.plots, **{k: v for k, v in settings.items() if k in request_keys})
     except (ValueError, TypeError) as exc:
         raise UsageError(str(exc)) from None
-    return analyse(request)["exit_code"]
+    from .console import LOGGER, LogStream
+
+    return analyse(request, log=LogStream(LOGGER.getChild("analyse")))["exit_code"]  # type: ignore[arg-type]
 
 
 def _simulate(args: argparse.Namespace) -> int:
@@ -1329,15 +1394,37 @@ def _caused_by_sigterm(exc: BaseException | None) -> bool:
 
 
 def _main(argv: Sequence[str] | None) -> int:
+    from .console import configure_logging
+
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help()
         return 2
+    with configure_logging(args.verbosity):
+        log = _logger(args.command)
+        if log.isEnabledFor(logging.DEBUG):  # --verbose: what ran, for a bug report
+            import platform
+
+            import cv2
+            log.debug(f"antiscatter {__version__}, Python {platform.python_version()}, numpy {np.__version__}, "
+                      f"OpenCV {cv2.__version__}; arguments {vars(args)}")
+        started = time.perf_counter_ns()
+        code = _command(args)
+        log.debug(f"exit code {code} after {(time.perf_counter_ns() - started) / 1e9:.2f} s")
+        return code
+
+
+def _command(args: argparse.Namespace) -> int:
+    """Run the parsed command; bad input, a failure partway and a stop each end in one line on stderr."""
+    from .console import LOGGER
+
+    log = LOGGER.getChild(args.command)
     try:
         if args.command == "run":
+            from .console import LogStream
             from .runtime import run
-            summary = run(_run_config(args))
+            summary = run(_run_config(args), log=LogStream(log))  # type: ignore[arg-type]
             if summary.stop_reason == "stopped by SIGINT":
                 return 130
             if summary.stop_reason == "stopped by SIGTERM":
@@ -1365,16 +1452,16 @@ def _main(argv: Sequence[str] | None) -> int:
             from .service import service_main
             return service_main(args)
     except UsageError as exc:
-        print(f"antiscatter {args.command}: error: {exc}", file=sys.stderr)
+        log.error(f"antiscatter {args.command}: error: {exc}")
         return 2
     except RunError as exc:  # failed partway (a dead detector process): files complete up to it
-        print(f"antiscatter {args.command}: error: {exc}", file=sys.stderr)
+        log.error(f"antiscatter {args.command}: error: {exc}")
         return 1
     except Terminated:
-        print(f"antiscatter {args.command}: stopped by SIGTERM", file=sys.stderr)
+        log.error(f"antiscatter {args.command}: stopped by SIGTERM")
         return 143
     except KeyboardInterrupt:
-        print(f"antiscatter {args.command}: interrupted", file=sys.stderr)
+        log.error(f"antiscatter {args.command}: interrupted")
         return 130
     except BrokenPipeError:
         return 1

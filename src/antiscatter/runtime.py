@@ -216,6 +216,7 @@ class RunSummary:
     cut: int = 0  # candidates the detector's work bound left out, over the run
     cut_frames: int = 0  # frames where it left any out
     damaged: str = ""  # the source ended before its declared end (a file cut short): the warning, else ""
+    synthetic: bool = False  # the source drew its frames (the simulator): that drawing is not counted as capture
     # per-frame times as compact int64 arrays (8 bytes a frame), for percentiles and pacing
     output_times: array.array = field(default_factory=lambda: array.array("q"))
     latencies_ns: array.array = field(default_factory=lambda: array.array("q"))
@@ -977,7 +978,8 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
             _run_single(pipeline, source, stop, rc)
         summary.wall_s = (time.perf_counter_ns() - started) / 1e9
         summary.damaged = source.damaged
-    _print_summary(summary, out)
+        summary.synthetic = getattr(source, "synthetic", False)
+    _print_summary(summary, out, config)
     if summary.damaged:
         print(f"warning: {summary.damaged}", file=log)
     return summary
@@ -1044,10 +1046,13 @@ def claim_recording_path(base: Path, *, limit: int = 10000) -> Path:
 
 
 def _timed_read(source: FrameSource) -> tuple[Any, int, int]:
-    """(frame or None, clock before, clock after) of one ``source.read()``."""
+    """(frame or None, clock before, clock after) of one ``source.read()``; for a source that draws its
+    frames (``synthetic``: the simulator) both the time after, as drawing a frame is no capture: the
+    vehicle's camera has it drawn by the world."""
     t0 = time.perf_counter_ns()
     frame = source.read()
-    return frame, t0, time.perf_counter_ns()
+    t1 = time.perf_counter_ns()
+    return frame, t1 if getattr(source, "synthetic", False) else t0, t1
 
 
 def _finished(summary: RunSummary, stop: "StopFlag", rc: Any) -> bool:
@@ -1471,7 +1476,20 @@ class LatestSlot:
             return dropped
 
 
-def _print_summary(summary: RunSummary, out: TextIO) -> None:
+def written_files(config: Config) -> list[tuple[str, str]]:
+    """(path, what it holds) of every file or folder a run with ``config`` writes, in flag order
+    (the panel's recordings are named apart, as they are made)."""
+    rc = config.run
+    files = [(rc.metrics, "per-frame stage timings"), (rc.detections, "one row per particle"),
+             (rc.mcap, "every frame as ROS 2 messages")]
+    for spec in config.output.outputs:
+        kind, _, arg = spec.partition(":")
+        if kind == "files" and arg:
+            files.append((arg, "the light patterns"))
+    return [(path, what) for path, what in files if path]
+
+
+def _print_summary(summary: RunSummary, out: TextIO, config: Config | None = None) -> None:
     p = summary.particles
     fps = summary.frames / summary.wall_s if summary.wall_s > 0 else 0.0
     print(f"frames: {summary.frames} ({summary.stop_reason}), dropped {summary.dropped}", file=out)
@@ -1484,6 +1502,9 @@ def _print_summary(summary: RunSummary, out: TextIO) -> None:
     if p.count:
         print(f"particles per frame: mean {p.mean:.1f}, min {p.min:.0f}, max {p.max:.0f}", file=out)
     print(summary.table(), file=out)
+    if summary.synthetic:
+        print("note: the simulator draws each frame as it is read; the drawing is not counted as Capture "
+              "(0 here), and End-to-end Latency runs from the frame drawn to its light shown", file=out)
     print(f"frames per second: {fps:.1f} over {summary.wall_s:.2f} s", file=out)
     for entry in summary.recordings:
         outcome = f"failed ({entry['error']})" if "error" in entry else f"{entry.get('frames', 0)} frames"
@@ -1492,3 +1513,8 @@ def _print_summary(summary: RunSummary, out: TextIO) -> None:
     if pacing:
         print(f"output rate {pacing['rate']:.2f} frames/s; interval error p50 {pacing['jitter_p50_ms']:.3f} ms, "
               f"p99 {pacing['jitter_p99_ms']:.3f} ms, max {pacing['jitter_max_ms']:.3f} ms", file=out)
+    if config is not None:
+        files = written_files(config)
+        print("files written: " + (", ".join(f"{path} ({what})" for path, what in files) if files else
+                                   "none (--metrics, --detections, --mcap or --output files:DIR keep the run)"),
+              file=out)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import getpass
 import grp
+import logging
 import os
 import pwd
 import sys
@@ -165,8 +166,9 @@ def service_main(args: argparse.Namespace) -> int:
         return 0
     path = install_unit(text, args.unit_dir, args.name, overwrite=args.overwrite)
     for group in missing_groups():
-        print(f"warning: no group {group} here: systemd will refuse to start the unit until it exists "
-              f"(sudo groupadd --system {group})", file=sys.stderr)
+        logging.getLogger("antiscatter.service").warning(
+            f"no group {group} here: systemd will refuse to start the unit until it exists "
+            f"(sudo groupadd --system {group})")
     print(f"wrote {path} (runs as {user}: antiscatter run --config {Path(args.config).absolute()})")
     print(systemctl_steps(args.name))
     return 0

@@ -48,11 +48,12 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import cv2
 import numpy as np
 
+from .console import progress
 from .detection import make_detector
 from .detections import Detections
 from .errors import UsageError
@@ -493,12 +494,13 @@ def twin_scene(geometry: "TwinGeometry", preset: str, seed: int, current: float 
 
 def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), preset: str = "mixed",
                   frames: int = 90, seed: int = 1, latency_ms: float = 5.0, scene: Any = None,
-                  calibration: Any = None) -> dict[str, Any]:
+                  calibration: Any = None, on_frame: Callable[[], Any] | None = None) -> dict[str, Any]:
     """Run one configuration in the loop; returns its figures (and per-frame series).
 
     scene: a RealisticScene to use instead of the preset (its size must be ``geometry.camera_size``).
     calibration: a :class:`~antiscatter.calibration.Calibration` for the ``calibrated`` and
         ``range`` mappings; None = the twin's exact geometry.
+    on_frame: called as each camera frame begins (a progress bar's ``update``); None = nothing.
     """
     if scene is None:
         scene = twin_scene(geometry, preset, seed)
@@ -644,6 +646,8 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
     lifted = False
     processed = 0
     for k in range(frames):
+        if on_frame is not None:
+            on_frame()
         if k:
             scene.step()
         t0 = k / geometry.camera_hz
@@ -828,40 +832,55 @@ def plot_curves(path: str, *, geometry: TwinGeometry, preset: str = "mixed", fra
         curves["focus_m"], curves["by_focus"] = list(focuses_m), {}
         panels.append(("by_focus", focuses_m, f"distance the projector is focused at (m; aperture "
                                               f"{geometry.projector_aperture_m * 1e3:g} mm)"))
-    for name, run in runs.items():
-        curves["by_latency"][name] = [simulate_loop(run, geometry=geometry, preset=preset, frames=frames, seed=seed,
-                                                    latency_ms=lat) for lat in latencies_ms]
-        curves["by_baseline"][name] = [simulate_loop(run, geometry=_replace(geometry, baseline_m=b), preset=preset,
-                                                     frames=frames, seed=seed, latency_ms=5.0) for b in baselines_m]
-        curves["by_speed"][name] = [simulate_loop(run, geometry=geometry, scene=drifting(c), frames=frames,
-                                                  latency_ms=5.0) for c in currents_m_s]
-        if "by_focus" in curves:
-            curves["by_focus"][name] = [simulate_loop(run, geometry=_replace(geometry, projector_focus_m=f),
-                                                      preset=preset, frames=frames, seed=seed, latency_ms=5.0)
-                                        for f in focuses_m]
+    loops = len(runs) * sum(len(xs) for _, xs, _ in panels)
+    with progress(total=loops * frames, desc="twin plot") as bar:
+        for name, run in runs.items():
+            curves["by_latency"][name] = [simulate_loop(run, geometry=geometry, preset=preset, frames=frames,
+                                                        seed=seed, latency_ms=lat, on_frame=bar.update)
+                                          for lat in latencies_ms]
+            curves["by_baseline"][name] = [simulate_loop(run, geometry=_replace(geometry, baseline_m=b),
+                                                         preset=preset, frames=frames, seed=seed, latency_ms=5.0,
+                                                         on_frame=bar.update) for b in baselines_m]
+            curves["by_speed"][name] = [simulate_loop(run, geometry=geometry, scene=drifting(c), frames=frames,
+                                                      latency_ms=5.0, on_frame=bar.update) for c in currents_m_s]
+            if "by_focus" in curves:
+                curves["by_focus"][name] = [simulate_loop(run, geometry=_replace(geometry, projector_focus_m=f),
+                                                          preset=preset, frames=frames, seed=seed, latency_ms=5.0,
+                                                          on_frame=bar.update) for f in focuses_m]
     plt = _pyplot()
-    fig, axes = plt.subplots(1, len(panels), figsize=(6 * len(panels), 4.5))
-    for ax, (key, xs, label) in zip(axes, panels):
-        for name, results in curves[key].items():
-            line, = ax.plot(xs, [r["backscatter_removed"] for r in results], "o-", label=f"{name}: removed")
-            ax.plot(xs, [r["scene_light_kept"] for r in results], "s--", color=line.get_color(),
-                    label=f"{name}: kept")
-        ax.set_xlabel(label)
-        ax.set_ylim(0, 1.02)
-        ax.grid(alpha=0.3)
-    axes[0].set_title(f"against latency (baseline {geometry.baseline_m:g} m)")
-    axes[1].set_title("against baseline (latency 5 ms)")
-    axes[2].set_title(f"against particle speed (baseline {geometry.baseline_m:g} m, latency 5 ms)")
-    axes[2].set_xticks(list(currents_m_s), [f"{c:g}\n{s:.0f}" for c, s in zip(currents_m_s, speeds)])
-    if "by_focus" in curves:
-        axes[3].set_title(f"against projector focus (baseline {geometry.baseline_m:g} m, latency 5 ms)")
-        axes[3].set_xscale("log")
-        axes[3].minorticks_off()  # the log axis's own labels would sit among the distances'
-        axes[3].set_xticks(list(focuses_m), [f"{f:g}" for f in focuses_m])
-    handles, labels = axes[1].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=7, fontsize=7)
-    fig.suptitle(f"antiscatter twin: {preset}, {frames} frames; default detector, calibrated mapping (seed: identity)")
-    fig.tight_layout(rect=(0, 0.1, 1, 1))
+    # one row per figure (removed, kept): each panel holds one line per configuration, told apart by
+    # colour and marker, under one legend; the two figures of a run no longer share a panel
+    figures = (("backscatter_removed", "backscatter removed"), ("scene_light_kept", "scene light kept"))
+    fig, axes = plt.subplots(len(figures), len(panels), figsize=(5.5 * len(panels), 8.5), sharey="row",
+                             squeeze=False)
+    markers = "osD^v<>xP*"
+    for row, (figure, ylabel) in enumerate(figures):
+        for ax, (key, xs, label) in zip(axes[row], panels):
+            for i, (name, results) in enumerate(curves[key].items()):
+                ax.plot(xs, [r[figure] for r in results], marker=markers[i % len(markers)], color=f"C{i}",
+                        label=name)
+            ax.set_ylim(0, 1.02)
+            ax.grid(alpha=0.3)
+            if row == len(figures) - 1:
+                ax.set_xlabel(label)
+        axes[row][0].set_ylabel(f"{ylabel} (share, 0..1)")
+    titles = [f"against latency (baseline {geometry.baseline_m:g} m)", "against baseline (latency 5 ms)",
+              f"against particle speed (baseline {geometry.baseline_m:g} m, 5 ms)",
+              f"against projector focus (baseline {geometry.baseline_m:g} m, 5 ms)"]
+    for ax, title in zip(axes[0], titles):
+        ax.set_title(title, fontsize=10)
+    speed_ticks = [f"{c:g}\n{s:.0f}" for c, s in zip(currents_m_s, speeds)]
+    for row in range(len(figures)):
+        axes[row][2].set_xticks(list(currents_m_s), speed_ticks)
+        if "by_focus" in curves:
+            axes[row][3].set_xscale("log")
+            axes[row][3].minorticks_off()  # the log axis's own labels would sit among the distances'
+            axes[row][3].set_xticks(list(focuses_m), [f"{f:g}" for f in focuses_m])
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=(len(labels) + 1) // 2, fontsize=10,
+               title="configuration (default detector, calibrated mapping; seed: identity)", title_fontsize=10)
+    fig.suptitle(f"antiscatter twin: {preset}, {frames} frames a point")
+    fig.tight_layout(rect=(0, 0.1, 1, 0.97))
     save_figure(fig, path)
     plt.close(fig)
     for key, _, _ in panels:

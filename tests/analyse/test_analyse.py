@@ -353,3 +353,17 @@ def test_missing_extra_names_the_install_command(tmp_path, cli, monkeypatch):
     result = cli("analyse", str(tmp_path), "--out", str(tmp_path / "o"))
     assert result.code == 2
     assert "analyse needs pyarrow: pip install 'antiscatter[analysis]'" in result.err
+
+
+def test_the_progress_bar_is_not_written_to_a_redirected_log(videos, tmp_path, client, monkeypatch):
+    """With progress on (the default) and stderr not a terminal, no bar reaches the log or stderr
+    (tqdm wrote it to the log before, whatever it was)."""
+    import io
+    import sys
+
+    err, log = io.StringIO(), io.StringIO()
+    monkeypatch.setattr(sys, "stderr", err)
+    request = AnalyseRequest((str(videos[0][0]),), tmp_path / "o", progress=True, plots=False, bin_s=0.25)
+    analyse(request, client=client, log=log, out=io.StringIO())
+    assert "chunk" in log.getvalue()  # its notes are there
+    assert "|" not in log.getvalue() and "\r" not in log.getvalue() and err.getvalue() == ""

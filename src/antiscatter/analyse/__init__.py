@@ -4,7 +4,7 @@ per litre, UVP-style size spectra, brightness and turbidity, binned in time.
 Stages, one module each: :mod:`.inputs` (files, globs, lists; probing; chunks at keyframes),
 :mod:`.work` (one chunk through the detector, resumable results), :mod:`.volume` (the volume
 and pixel-size model), :mod:`.tables` (Parquet tables and the summary), :mod:`.plots`, and
-:mod:`.command` (the Dask run).  Dask, pyarrow, matplotlib and tqdm are imported only when a
+:mod:`.command` (the Dask run).  Dask, pyarrow and matplotlib are imported only when a
 run starts (``pip install 'antiscatter[analysis]'``).
 """
 

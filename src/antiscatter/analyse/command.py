@@ -49,7 +49,7 @@ class AnalyseRequest:
     bin_s: length of the time bins, seconds (default 10).
     volume: the volume and pixel-size model (:class:`VolumeModel`).
     classes_mm: (low, high) ESD range of the size classes, mm; None = one pixel to 100 pixels across.
-    progress: show a progress bar on the log (default True).
+    progress: a progress bar on stderr where it is a terminal (default True; off with --quiet too).
     plots: write the PNG figures (default True).
     """
 
@@ -82,7 +82,7 @@ def require_analysis(plots: bool = True) -> None:
     """A one-line UsageError naming the install command when a package of the ``analysis`` extra is missing."""
     import importlib.util
 
-    needed = ["dask", "distributed", "pyarrow", "tqdm"] + (["matplotlib"] if plots else [])
+    needed = ["dask", "distributed", "pyarrow"] + (["matplotlib"] if plots else [])
     missing = [name for name in needed if importlib.util.find_spec(name) is None]
     if missing:
         raise UsageError(f"analyse needs {', '.join(missing)}: {INSTALL_HINT}")
@@ -136,7 +136,7 @@ def analyse(request: AnalyseRequest, *, client: Any = None, log: TextIO | None =
     folder = check_output_folder(request.out, "--out")
     chunks_folder = folder / "chunks"
     from dask.distributed import as_completed
-    from tqdm import tqdm
+    from ..console import progress
 
     with ExitStack() as stack:
         if client is None:
@@ -170,8 +170,7 @@ def analyse(request: AnalyseRequest, *, client: Any = None, log: TextIO | None =
             future = client.submit(_run_chunk, chunk, pure=False)
             pending[future] = keys[(chunk.source.path, chunk.start)]
             futures.append(future)
-        with tqdm(total=len(futures), unit="chunk", desc="analyse", file=log,
-                  disable=not request.progress or not futures) as bar:
+        with progress(total=len(futures), unit="chunk", desc="analyse", enabled=request.progress and bool(futures)) as bar:
             for future in as_completed(futures):
                 key = pending[future]
                 try:

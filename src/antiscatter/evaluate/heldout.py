@@ -23,6 +23,7 @@ from typing import Any, Callable, Iterator
 import cv2
 import numpy as np
 
+from ..console import progress
 from ..detection import Detector
 from ..errors import UsageError
 from .metrics import FrameScore, summarise
@@ -837,7 +838,7 @@ def evaluate_heldout(split: str, detectors: dict[str, Detector], m: Matching, *,
     """
     require_skimage()
     rows, pooled = [], {n: [] for n in detectors}
-    for case in cases(split, frames=frames, data=data):
+    for case in progress(cases(split, frames=frames, data=data), desc=f"held-out {split}", unit="case"):
         log(f"held-out {split}: {case.name}")
         scores, times, counted = _run_case(case, detectors, m, clock)
         rows.append(_case_row(case, scores, times, counted))

@@ -10,6 +10,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..console import progress
 from ..detection import DETECTORS, make_detector, with_sensitivity
 from ..writing import CsvFile
 from .metrics import FrameScore, summarise
@@ -60,8 +61,9 @@ def plot_evaluation(path: str | Path, scores: list[FrameScore],
         recall = [s["recall"] for _, s in sweep]
         precision = [s["precision"] for _, s in sweep]
         ax.plot(recall, precision, "o-")
-        for value, s in sweep:
-            ax.annotate(f"{value:g}", (s["recall"], s["precision"]), fontsize=7)
+        for i in spaced_labels(np.column_stack([recall, precision]), gap=0.06):
+            ax.annotate(f"{sweep[i][0]:g}", (recall[i], precision[i]), xytext=(4, 4), textcoords="offset points",
+                        fontsize=8)
         ax.set_xlabel("recall")
         ax.set_ylabel("precision")
         ax.set_xlim(0, 1.02)
@@ -85,6 +87,37 @@ def plot_evaluation(path: str | Path, scores: list[FrameScore],
     plt.close(fig)
 
 
+def spaced_labels(points: np.ndarray, *, gap: float) -> list[int]:
+    """Indices of the points to label so that no two labels crowd: the first, then the last, then the
+    others in order, each only when it lies at least ``gap`` (data units; the PR plot's axes span
+    0..1) from every point labelled before it (a point without a value, NaN, is never labelled).
+
+    Parameters
+    ----------
+    points : (N, 2) float array
+        The points in drawing order (recall, precision).
+    gap : float
+        Least distance between two labelled points.
+
+    Returns
+    -------
+    list of int
+        Indices into ``points``, ascending.
+    """
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    if len(points) == 0:
+        return []
+    order = [0, len(points) - 1] + list(range(1, len(points) - 1))
+    chosen: list[int] = []
+    for i in order:
+        if i in chosen:
+            continue
+        finite = np.isfinite(points[i]).all()
+        if finite and all(np.hypot(*(points[i] - points[j])) >= gap for j in chosen):
+            chosen.append(i)
+    return sorted(chosen)
+
+
 def sweep_detector(name: str, params: Any, evaluate: Callable[[Any], list[FrameScore]]) -> list[tuple[float, dict]]:
     """Summaries of ``evaluate(detector)`` over the detector's sensitivity sweep."""
     entry = DETECTORS[name]
@@ -92,7 +125,7 @@ def sweep_detector(name: str, params: Any, evaluate: Callable[[Any], list[FrameS
     if not key:
         return []
     out = []
-    for value in values:
+    for value in progress(values, desc=f"sweep {key}", unit="value"):
         detector = make_detector(name, with_sensitivity(name, params, value))
         out.append((value, summarise(evaluate(detector))))
     return out
@@ -456,9 +489,9 @@ def _twin_groups(jobs: list[tuple], seeds: int, log: Callable[[str], None], work
         from concurrent.futures import ProcessPoolExecutor
 
         with ProcessPoolExecutor(workers) as pool:
-            outs = list(pool.map(_twin_job, jobs))
+            outs = list(progress(pool.map(_twin_job, jobs), total=len(jobs), desc="twin", unit="loop"))
     else:
-        outs = [_twin_job(job) for job in jobs]
+        outs = [_twin_job(job) for job in progress(jobs, desc="twin", unit="loop")]
     for at in range(0, len(jobs), seeds):
         yield jobs[at], outs[at:at + seeds]
 

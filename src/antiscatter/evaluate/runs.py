@@ -10,6 +10,7 @@ from typing import Any, Iterator
 import cv2
 import numpy as np
 
+from ..console import progress
 from ..detection import Detector
 from ..errors import UsageError
 from ..simulate import make_scene
@@ -130,13 +131,29 @@ def source_truth_frames(source: Path, m: Matching, truth_path: Path | None = Non
         raise UsageError(f"{truth_path}: frame {last} is beyond the last frame of {source} ({number - 1})")
 
 
+def _frame_count(source: Path, limit: int | None) -> int | None:
+    """The frames :func:`source_truth_frames` gives, for a progress bar: a folder's, a video's declared
+    count (None when its container does not say), at most ``limit``."""
+    if source.is_dir():
+        count = len(frame_files(source))
+    else:
+        capture = cv2.VideoCapture(str(source))
+        count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT)) if capture.isOpened() else 0
+        capture.release()
+        if count <= 0:
+            return limit
+    return min(count, limit) if limit else count
+
+
 def evaluate_source(source: Path, detector: Detector, m: Matching, truth_path: Path | None = None,
                     limit: int | None = None) -> list[FrameScore]:
     """Run ``detector`` on a folder of frames or a video file and score it against its truth
     (:func:`source_truth_frames`); pixel metrics where a simulator folder has masks/."""
     scores = []
     detector.reset()
-    for frame, image, truth, mask_path in source_truth_frames(source, m, truth_path, limit):
+    for frame, image, truth, mask_path in progress(source_truth_frames(source, m, truth_path, limit),
+                                                   total=_frame_count(source, limit),
+                                                   desc=f"evaluate {detector.name}", leave=False):
         masks = None
         if mask_path is not None:
             labels = cv2.imread(str(mask_path), cv2.IMREAD_UNCHANGED)
@@ -203,7 +220,8 @@ def evaluate_scenario(preset: str, size: tuple[int, int], frames: int, seed: int
     scores: dict[str, list[FrameScore]] = {name: [] for name in detectors}
     for detector in detectors.values():
         detector.reset()  # a new scene: nothing learnt carries over
-    for index, image, labels, scene_truth in scenario_frames(preset, size, frames, seed):
+    for index, image, labels, scene_truth in progress(scenario_frames(preset, size, frames, seed), total=frames,
+                                                      desc=f"evaluate {preset}", leave=False):
         truth = truth_of(scene_truth, m)
         masks = _label_masks(labels, truth)
         for name, detector in detectors.items():
@@ -216,7 +234,8 @@ def evaluate_pairs(pairs: list[tuple[Path, Path]], detector: Detector, m: Matchi
                    rise: float = 20.0, min_area: int = 3) -> list[FrameScore]:
     """Score ``detector`` on real degraded images against truth from their clean references."""
     scores = []
-    for index, (degraded_path, clean_path) in enumerate(pairs):
+    for index, (degraded_path, clean_path) in enumerate(progress(pairs, desc=f"evaluate {detector.name}", unit="pair",
+                                                                 leave=False)):
         degraded, bits = read_frame(degraded_path)
         clean, _ = read_frame(clean_path, bits)  # a 16-bit pair scaled alike
         try:
@@ -247,7 +266,7 @@ def evaluate_tracking(frames_iter, detector: Detector, m: Matching, *, fps: floa
     alone = TrackingScore(min_gate=m.min_gate, gate_scale=m.gate_scale)  # particles that overlap none
     prediction = PredictionError()
     dt = 1.0 / fps
-    for index, image, truth in frames_iter:
+    for index, image, truth in progress(frames_iter, desc="tracking", leave=False):
         found = detector.detect(image)
         if tracker.timestamp is None:  # the first frame: its motion settings are for 800 px wide ones
             tracker.set_frame_size((image.shape[1], image.shape[0]))

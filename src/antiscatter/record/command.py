@@ -168,7 +168,7 @@ def record(request: RecordRequest, *, log: TextIO | None = None, out: TextIO | N
                         if frame.image.nbytes > buffer_bytes:  # no frame ever fits: nothing was recorded
                             _refuse_buffer(request, frame.image.nbytes)
                         message = str(exc)
-                        print(message, file=log)
+                        print(f"warning: {message}", file=log)
                         state["recording"] = False
                     except WriteError as exc:  # the disk is full: stop, with the frames the file holds
                         failure, message, reason = exc, str(exc), "write failed"

@@ -21,13 +21,14 @@ from typing import TextIO
 import cv2
 import numpy as np
 
+from ..console import progress
 from ..errors import UsageError, check_output_folder, check_output_path
 from ..writing import CsvFile, write_whole
 from ..sources.folder import list_frames
 from . import make_scene
 from .truth import TRUTH_COLUMNS
 
-__all__ = ["SimulationRequest", "simulate", "Progress"]
+__all__ = ["SimulationRequest", "simulate"]
 
 
 @dataclass(frozen=True)
@@ -51,28 +52,6 @@ class SimulationRequest:
     masks: bool = False
     video: Path | None = None
     overwrite: bool = False
-
-
-class Progress:
-    """A one-line progress bar on a terminal; silent otherwise."""
-
-    def __init__(self, total: int, stream: TextIO = sys.stderr) -> None:
-        self.total = total
-        self.stream = stream
-        self.enabled = stream.isatty()
-        self.start = time.perf_counter()
-
-    def update(self, done: int) -> None:
-        if not self.enabled or (done % 5 and done != self.total):
-            return
-        width = 30
-        filled = int(width * done / self.total)
-        rate = done / max(time.perf_counter() - self.start, 1e-9)
-        self.stream.write(f"\r[{'#' * filled}{'.' * (width - filled)}] {done}/{self.total} frames "
-                          f"{rate:.0f} frames/s")
-        if done == self.total:
-            self.stream.write("\n")
-        self.stream.flush()
 
 
 def _check(request: SimulationRequest) -> None:
@@ -123,10 +102,9 @@ def simulate(request: SimulationRequest, *, log: TextIO = sys.stderr) -> dict[st
             stream.thread_type = "AUTO"
         labels = np.zeros((height, width), np.uint16) if request.masks else None
         rows = 0
-        progress = Progress(request.frames)
         started = time.perf_counter()
         with CsvFile(staging / "truth.csv", TRUTH_COLUMNS) as writer:
-            for index in range(request.frames):
+            for index in progress(range(request.frames), desc="simulate"):
                 if index:
                     scene.step()
                 image = scene.render(labels=labels)
@@ -141,7 +119,6 @@ def simulate(request: SimulationRequest, *, log: TextIO = sys.stderr) -> dict[st
                     write_whole(staging / f"{index}.png", _png(image))
                 if labels is not None:
                     write_whole(staging / "masks" / f"{index}.png", _png(labels))
-                progress.update(index + 1)
         if container is not None:
             for packet in stream.encode(None):
                 container.mux(packet)

@@ -128,6 +128,7 @@ class FrameSource:
     fps: float = 0.0  # nominal rate, 0 when unknown
     live: bool = False  # frames come whether or not they are taken (a camera): may be dropped; their
     # media_time_ns is then on the monotonic clock
+    synthetic: bool = False  # frames are drawn when read (the simulator): their drawing is not timed as capture
     damaged: str = ""  # why the source ended before its declared end (a file cut short), "" when it did not
 
     def read(self) -> Frame | None:

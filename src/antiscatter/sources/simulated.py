@@ -21,6 +21,7 @@ class SimulatorSource(FrameSource):
     """
 
     name = "sim"
+    synthetic = True
 
     def __init__(self, *, preset: str = "seed", seed: int = 0,
                  size: tuple[int, int] | None = None) -> None:
