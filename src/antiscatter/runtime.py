@@ -28,10 +28,12 @@ from .detections import Detections
 from .errors import UsageError, check_output_path
 from .writing import CsvFile
 from .levels import HoleLevels
+from .lock import FLIP_MARGIN_S
 from .outputs import LightOutput, check_output, open_output
 from .pattern import scale_mapping
 from .sources import FrameSource, open_source, parse_crop
 from .stats import RunningStats
+from .strategies import strategy_entry
 from .system import Exposure, LoopSettings, Step, System, finish_stages, make_tracker, time_stages
 
 __all__ = ["REPORT_COLUMNS", "metrics_columns", "time_stages", "finish_stages", "Pacer", "RunSummary", "run",
@@ -262,15 +264,16 @@ def _make_system(config: Config, detector: Detector, tracker: Any, camera_size: 
         probe = DepthProbe(calibration.mapping_at, near_m=light.near_m, far_m=light.far_m,
                            dim_level=light.dim_level, projector_size=projector_size, min_worth=light.min_worth)
     # each hole's own light (dim, or pulse while the camera exposes): tracked, not probed
+    strategy = strategy_entry(light.strategy)
     levels = (HoleLevels(light.dim_level, floor=min(light.min_level, light.dim_level),
                          rest=light.rest if probe is None else 0)
-              if light.levels == "adaptive" and light.strategy in ("dim", "pulse") and tracker is not None else None)
+              if light.levels == "adaptive" and strategy.visible and tracker is not None else None)
     tc = config.track
     settings = LoopSettings(strategy=light.strategy, dim_level=light.dim_level, flash_level=light.flash_level,
                             predict=tc.predict, latency_s=tc.latency_ms / 1e3 if tc.latency_ms >= 0 else None,
                             display_lag_s=pattern.display_lag_ms / 1e3, refresh_s=1.0 / pattern.refresh_hz,
                             grow=pattern.grow, grow_from=pattern.grow_from, margin=pattern.margin,
-                            compensate=bool(light.compensate) and light.strategy != "flash"
+                            compensate=bool(light.compensate) and strategy.exposure != "flash"
                             and config.run.mode == "single")
     return System(detector, tracker, mapping=mapping, camera_size=camera_size, projector_size=projector_size,
                   settings=settings, levels=levels, probe=probe, defer=defer, buffers=buffers)
@@ -718,7 +721,7 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
               f"output {names}, mode {rc.mode}, light strategy {config.light.strategy}", file=log)
         for note in config.notes:
             print(f"note: {note}", file=log)
-        if (config.light.strategy in ("pulse", "flash") and getattr(source, "live", False)
+        if (strategy_entry(config.light.strategy).exposing and getattr(source, "live", False)
                 and not config.source.camera_lock):
             print(f"note: {config.light.strategy} on a free-running camera reads every other frame, each exposure "
                   "begun once its light is on screen (in the twin, co-located, pulse removed 0.856 against dim's "
@@ -821,8 +824,8 @@ def _finished(summary: RunSummary, stop: "StopFlag", rc: Any) -> bool:
 
 #: frames a live source may deliver from before the flash went on (exposed under the last pattern)
 MAX_STALE_FRAMES = 3
-#: locked: a flip asked for later than this before a vertical blank is taken as missing it
-FLIP_MARGIN_NS = 1_000_000
+#: locked: a flip asked for later than this before a vertical blank is taken as missing it (ns)
+FLIP_MARGIN_NS = round(FLIP_MARGIN_S * 1e9)
 
 
 def light_ahead(next_flip: float, ready: float, light_by: float, refresh: float) -> bool:

@@ -24,6 +24,7 @@ from .detections import Detections
 from .levels import HoleLevels
 from .pattern import GROW, GROW_FROM, camera_light, grow_holes, render_pattern
 from .probe import DepthProbe, Intervals
+from .strategies import strategy_entry
 from .tracking import PREDICT_AHEAD, Tracker
 
 if TYPE_CHECKING:
@@ -192,12 +193,12 @@ class System:
         self.mapping = mapping
         self.camera_size, self.projector_size = camera_size, projector_size
         width, height = projector_size
-        strategy = settings.strategy
-        self.hole_level = round(settings.dim_level * 255) if strategy == "dim" else 0
+        self.strategy = strategy = strategy_entry(settings.strategy)
+        self.hole_level = round(settings.dim_level * 255) if strategy.hole == "dim" else 0
         # pulse: while the camera exposes, the last pattern with its holes lifted to dim_level
-        self.pulse_level = round(settings.dim_level * 255) if strategy == "pulse" else None
+        self.pulse_level = round(settings.dim_level * 255) if strategy.exposure == "lifted" else None
         self.flash_image = (np.full((height, width), round(settings.flash_level * 255), np.uint8)
-                            if strategy == "flash" else None)
+                            if strategy.exposure == "flash" else None)
         self.buffers = [np.empty((height, width), np.uint8) for _ in range(buffers)]
         # pulse with probing, levels or prediction: the lifted pattern drawn for the exposure
         self.exposure_buffer = (np.empty((height, width), np.uint8)
@@ -372,7 +373,7 @@ class System:
         if pattern:
             dark = step.hole_ids if light is not None else None
             return Exposure(light, dark, dark, {})
-        unlit = step.hole_ids if light is not None and self.flash_image is None else None
+        unlit = step.hole_ids if light is not None and self.strategy.unlit else None
         return Exposure(light, unlit, step.rested_ids if unlit is not None else None,
                         step.probes if light is not None else {})
 

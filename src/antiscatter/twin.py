@@ -58,6 +58,7 @@ from .levels import LEVELS, HoleLevels, rest_for
 from .pattern import GROW, GROW_FROM, scale_mapping
 from .simulate import make_scene
 from .probe import MIN_WORTH, DepthProbe
+from .strategies import strategies_that, strategy_entry, strategy_names
 from .system import Exposure, LoopSettings, Step, System, make_tracker
 
 
@@ -168,10 +169,11 @@ class _LockedRun(_FreeRunning):
         return True
 
     def processed(self, start: float, end: float) -> float:
-        from .runtime import FLIP_MARGIN_NS, light_after, light_ahead
+        from .lock import FLIP_MARGIN_S
+        from .runtime import light_after, light_ahead
 
         r = self.refresh
-        margin = FLIP_MARGIN_NS / 1e9
+        margin = FLIP_MARGIN_S
         coming = start + self.period
         now = _flip_lands(max(end, self.pending), r)  # what a flip asked for on reading lands at
         posted, self.posted = self.posted, False
@@ -207,7 +209,8 @@ class _LockedRun(_FreeRunning):
 
 __all__ = ["TwinGeometry", "TwinRun", "simulate_loop", "default_runs", "backscatter_weight", "STRATEGIES", "MAPPINGS"]
 
-STRATEGIES = ("none", "dim", "pulse", "flash", "coast")
+#: the light strategies registered at import (antiscatter.strategies; TwinRun reads the registry)
+STRATEGIES = strategy_names()
 #: frames the system needs to start up (the detector's 16-frame background warm-up, the first
 #: tracks' confirmation); the ``_steady`` figures leave them out (at most half a run)
 SETTLE_FRAMES = 20
@@ -372,12 +375,12 @@ class TwinRun:
     def __post_init__(self) -> None:
         if self.levels not in LEVELS:
             raise ValueError(f"levels: got {self.levels!r}, allowed {', '.join(LEVELS)}")
-        if self.strategy not in STRATEGIES:
-            raise ValueError(f"strategy: got {self.strategy!r}, allowed {', '.join(STRATEGIES)}")
+        strategy = strategy_entry(self.strategy)  # (ValueError naming the allowed ones)
         if self.mapping not in MAPPINGS:
             raise ValueError(f"mapping: got {self.mapping!r}, allowed {', '.join(MAPPINGS)}")
-        if self.mapping == "probe" and self.strategy not in ("dim", "pulse"):
-            raise ValueError("mapping: probe needs strategy dim or pulse (a probed particle must stay visible)")
+        if self.mapping == "probe" and not strategy.visible:
+            raise ValueError(f"mapping: probe needs strategy {strategies_that('visible')} (a probed particle must "
+                             "stay visible)")
 
 
 #: 32 points spread evenly over the unit disc (a sunflower spiral): a disc's mean light is their mean
@@ -455,10 +458,10 @@ def _twin_system(run: TwinRun, geometry: TwinGeometry, calibration: Any) -> Syst
     the full lamp)."""
     if not run.detector:
         return None
-    probing = run.mapping == "probe"
+    probing, strategy = run.mapping == "probe", strategy_entry(run.strategy)
     # motion settings scale with the width; probing: as run (system.make_tracker)
     tracker = (make_tracker(probing=probing, frame_size=geometry.camera_size)
-               if run.strategy == "coast" or run.predict or probing else None)
+               if strategy.tracks or run.predict or probing else None)
     # holes along epipolar segments: probed intervals, or the whole range when depth is unknown
     segments = None
     if probing or (run.mapping == "range" and geometry.baseline_m > 0):
@@ -467,7 +470,7 @@ def _twin_system(run: TwinRun, geometry: TwinGeometry, calibration: Any) -> Syst
                               projector_size=geometry.projector_size, min_worth=run.min_worth)
     rest = rest_for(run.strategy) if run.rest is None else run.rest
     levels = (HoleLevels(run.dim_level, rest=0 if probing else rest)  # probing reads no rest
-              if run.levels == "adaptive" and run.strategy in ("dim", "pulse") and tracker is not None else None)
+              if run.levels == "adaptive" and strategy.visible and tracker is not None else None)
     if run.mapping == "identity":
         mapping = scale_mapping(geometry.camera_size, geometry.projector_size)
     elif calibration is not None:
@@ -483,7 +486,7 @@ def _twin_system(run: TwinRun, geometry: TwinGeometry, calibration: Any) -> Syst
                             refresh_s=1.0 / geometry.projector_hz, grow=run.grow, grow_from=run.grow_from,
                             margin=run.margin_px,
                             # as run: no compensation without a calibration, nor under a flash
-                            compensate=run.mapping != "identity" and run.strategy != "flash")
+                            compensate=run.mapping != "identity" and strategy.exposure != "flash")
     return System(make_detector(run.detector), tracker, mapping=mapping, camera_size=geometry.camera_size,
                   projector_size=geometry.projector_size, settings=settings, levels=levels,
                   probe=segments if probing else None, ranges=None if probing else segments,
@@ -552,7 +555,7 @@ class _Loop:
         self.latency = latency_ms / 1e3
         # the exposure's light: in the first refresh of each frame (camera locked to the projector),
         # or as run gives it on a free-running camera
-        self.exposing = run.strategy in ("pulse", "flash") and system is not None
+        self.exposing = strategy_entry(run.strategy).exposing and system is not None
         lag = geometry.display_lag_s
         # the light changes ``lag`` after each flip, so the refreshes of light are taken from then
         # (from the flips, a lag that is not whole refreshes moved every light into the refresh after
@@ -696,7 +699,8 @@ def _figures(run: TwinRun, geometry: TwinGeometry, loop: _Loop, frames: int, lat
             "calibrated": run.detector is not None and run.mapping != "identity",
             "mapping": run.mapping if run.detector else "none", "predict": run.predict,
             "strategy": run.strategy if run.detector else "none", "dim_level": run.dim_level,
-            "levels": ("adaptive" if levels is not None else "fixed") if run.strategy in ("dim", "pulse") else None,
+            "levels": ("adaptive" if levels is not None else "fixed") if strategy_entry(run.strategy).visible
+            else None,
             "rest": levels.rest if levels is not None else None,
             "grow": run.grow if run.detector else None,
             "grow_from": run.grow_from if run.detector and run.grow else None,
