@@ -81,10 +81,10 @@ def loop(strategy, **kw):
 def test_one_pattern_a_frame_as_run_draws_them(strategy, per_frame, monkeypatch):
     # run shows one pattern a camera frame (pulse: and the one lifted for the next exposure), each
     # held until the next; the twin measures that, not holes redrawn for each projector refresh
-    import antiscatter.twin as twin
+    import antiscatter.system as system
 
-    drawn, real = [], twin._holes_pattern
-    monkeypatch.setattr(twin, "_holes_pattern", lambda *a, **kw: drawn.append(1) or real(*a, **kw))
+    drawn, real = [], system.render_pattern
+    monkeypatch.setattr(system, "render_pattern", lambda *a, **kw: drawn.append(1) or real(*a, **kw))
     frames = 12
     out = simulate_loop(TwinRun("contrast", "calibrated", strategy, predict=True),
                         geometry=TwinGeometry(camera_size=SIZE, baseline_m=0.0, projector_hz=240.0), frames=frames,
@@ -105,9 +105,10 @@ def test_the_naive_loop_flickers_and_removes_about_half():
 
 def test_a_flash_sub_frame_takes_its_share_of_the_light():
     out = loop("flash", flash_level=0.25)
-    # in steady state the particle gets the flash (0.25 of one sub-frame in two) and nothing else
+    # in steady state the particle gets the flash (0.25 of one sub-frame in two, as run shows it:
+    # grey level 64 of 255) and nothing else
     for f in out["series"][4:]:
-        assert f["removed"] == pytest.approx(1 - 0.25 / 2, abs=1e-6)
+        assert f["removed"] == pytest.approx(1 - 64 / 255 / 2, abs=1e-6)
 
 
 def test_dim_holes_keep_the_particle_found():
@@ -286,9 +287,10 @@ def test_a_pattern_ready_within_the_frame_goes_on_at_the_next_refresh(exposure_s
                         geometry=TwinGeometry(camera_size=SIZE, baseline_m=0.0, exposure_s=exposure_s),
                         frames=6, latency_ms=latency, scene=one_static_particle())
     removed = [f["removed"] for f in out["series"]]
-    assert removed[first_dark_frame] == pytest.approx(1 - 0.25 / 2, abs=1e-6)
+    flash = 64 / 255  # 0.25 as run shows it, an 8-bit grey level
+    assert removed[first_dark_frame] == pytest.approx(1 - flash / 2, abs=1e-6)
     if first_dark_frame:
-        assert removed[0] == pytest.approx(1 - (0.25 + 1) / 2, abs=1e-6)  # the full lamp until then
+        assert removed[0] == pytest.approx(1 - (flash + 1) / 2, abs=1e-6)  # the full lamp until then
 
 
 def test_scoreboard_twin_table_has_every_run_at_both_baselines(monkeypatch):
@@ -529,15 +531,16 @@ def test_a_fast_near_bubble_keeps_its_track_in_the_loop(seed, monkeypatch):
     # was; found again beyond the gate (Tracker's far_bright), it keeps one track in the loop.  (Its
     # hole is where it is halfway through each frame; one pattern a frame, as run draws it, cannot
     # keep a speck crossing 30 px in that time dark.)
-    import antiscatter.tracking as tracking
+    import antiscatter.twin as twin
+    from antiscatter.config import TrackConfig
 
-    tracker, geometry = tracking.Tracker, TwinGeometry(camera_size=SIZE, baseline_m=0.0)
+    make, geometry = twin.make_tracker, TwinGeometry(camera_size=SIZE, baseline_m=0.0)
 
     def run(**settings):
         scene, ids = fast_near_bubble(seed), []
 
         def recording(**kw):
-            made = tracker(**kw, **settings)
+            made = make(TrackConfig(**settings), **kw)
             update = made.update
 
             def update_and_record(detections, timestamp, **options):
@@ -553,7 +556,7 @@ def test_a_fast_near_bubble_keeps_its_track_in_the_loop(seed, monkeypatch):
             made.update = update_and_record
             return made
 
-        monkeypatch.setattr(tracking, "Tracker", recording)
+        monkeypatch.setattr(twin, "make_tracker", recording)
         simulate_loop(TwinRun("contrast", "calibrated", "pulse", predict=True), geometry=geometry, frames=40,
                       latency_ms=5, scene=scene)
         return ids

@@ -27,7 +27,7 @@ import numpy as np
 from .console import progress
 from .detection import DETECTORS, Pooled, make_detector
 from .detection.contrast import downsample, label
-from .runtime import time_stages
+from .system import time_stages
 from .simulate import make_scene
 
 __all__ = ["BenchResult", "bench", "format_bench", "machine_description", "bench_modes", "format_modes",

@@ -61,6 +61,7 @@ def build_parser() -> argparse.ArgumentParser:
     from .levels import DIM_REST, LEVELS, REST
     from .probe import MIN_WORTH
     from .pattern import GROW, GROW_FROM
+    from .strategies import strategy_names
 
     parser = _Parser(
         prog="antiscatter",
@@ -125,7 +126,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--latency-ms", type=float, help="with --track: predict over this capture-to-light time "
                    "(default: the measured one)")
     g = run.add_argument_group("light strategy (against the closed-loop catch; see antiscatter twin)")
-    g.add_argument("--strategy", choices=("auto", "none", "dim", "pulse", "flash", "coast"),
+    g.add_argument("--strategy", choices=("auto", *strategy_names()),
                    help="auto (default): dim with tracking on with the camera, else none; none: holes from each "
                         "frame's detections; dim: holes at --dim-level so darkened particles stay visible; "
                         "pulse: holes at --dim-level only while the camera exposes, dark otherwise (mode "

@@ -23,8 +23,10 @@ import numpy as np
 
 from .errors import UsageError
 from .levels import LEVELS, MIN_LEVEL, rest_for
+from .lock import FLIP_MARGIN_S
 from .probe import MIN_WORTH
 from .pattern import GROW, GROW_FROM
+from .strategies import strategies_that, strategy_entry, strategy_names
 
 __all__ = ["SourceConfig", "DetectorConfig", "PatternConfig", "OutputConfig", "RunConfig", "TrackConfig",
            "LightConfig", "STRATEGIES", "Config", "load_config", "build_section", "parse_param", "parse_size"]
@@ -269,7 +271,8 @@ class TrackConfig:
             raise ValueError(f"flux_cost: got {self.flux_cost}, allowed a distance in px >= 0 (0 = distance alone)")
 
 
-STRATEGIES = ("none", "dim", "pulse", "flash", "coast")
+#: the light strategies registered at import (antiscatter.strategies; validation reads the registry)
+STRATEGIES = strategy_names()
 #: what ``auto`` picks on the vehicle (the camera as source), with tracking and prediction on:
 #: dim holes keep darkened particles visible, so tracks and (with a baseline) depth probing go
 #: on, whatever the camera's timing.  ``pulse`` does better only with the camera locked to the
@@ -293,8 +296,7 @@ HARDWARE_STRATEGY = "dim"
 #: (:func:`locked_light_reaches`)
 LOCKED_STRATEGY = "pulse"
 #: locked: how long after its exposure ends a frame is taken to be read, and a flip asked for
-#: (runtime.FLIP_MARGIN_NS)
-READ_MARGIN_S = 1e-3
+READ_MARGIN_S = FLIP_MARGIN_S
 
 
 #: locked: the processing a frame is taken to need when its light must go out after its pattern,
@@ -392,8 +394,8 @@ class LightConfig:
     def __post_init__(self) -> None:
         if self.levels not in ("auto", *LEVELS):
             raise ValueError(f"levels: got {self.levels!r}, allowed auto, {', '.join(LEVELS)}")
-        if self.strategy not in ("auto", *STRATEGIES):
-            raise ValueError(f"strategy: got {self.strategy!r}, allowed auto, {', '.join(STRATEGIES)}")
+        if self.strategy not in ("auto", *strategy_names()):
+            raise ValueError(f"strategy: got {self.strategy!r}, allowed auto, {', '.join(strategy_names())}")
         if self.depth not in ("auto", "fixed", "probe"):
             raise ValueError(f"depth: got {self.depth!r}, allowed auto, fixed, probe")
         if not (math.isfinite(self.near_m) and math.isfinite(self.far_m) and 0 < self.near_m < self.far_m):
@@ -650,7 +652,7 @@ def load_config(path: str | Path | None = None, overrides: dict[str, dict[str, A
         if camera:
             track = dataclasses.replace(track, enabled=True)
     if light.depth == "auto":
-        probe = (light.strategy in ("dim", "pulse") and sections["run"].mode == "single"
+        probe = (strategy_entry(light.strategy).visible and sections["run"].mode == "single"
                  and _has_baseline(sections["pattern"].calibration))
         light = dataclasses.replace(light, depth="probe" if probe else "fixed")
     if light.rest is None:  # the strategy's own
@@ -662,16 +664,18 @@ def load_config(path: str | Path | None = None, overrides: dict[str, dict[str, A
     if camera and sections["source"].camera_lores and sections["run"].mode.startswith("processes"):
         raise UsageError(f"source.camera_lores: goes with run.mode single or threads (a worker process is sent "
                          f"the full frame and pools it itself), got mode {sections['run'].mode}")
-    if light.strategy in ("flash", "pulse") and sections["run"].mode != "single":
+    strategy = strategy_entry(light.strategy)
+    if strategy.exposing and sections["run"].mode != "single":
         raise UsageError(f"light.strategy: {light.strategy} needs run.mode single (the exposure's light, the "
                          f"capture and the pattern take turns), got mode {sections['run'].mode}")
     if lock:
         _check_lock(sections["source"], sections["output"], sections["pattern"], light)
-    if light.strategy == "coast" and not track.enabled:
+    if strategy.tracks and not track.enabled:
         track = dataclasses.replace(track, enabled=True)  # coasting is what the tracker does
     if light.depth == "probe":
-        if light.strategy not in ("dim", "pulse") or sections["run"].mode != "single":
-            raise UsageError(f"light.depth: probe needs light.strategy dim or pulse (a probed particle must stay "
+        if not strategy.visible or sections["run"].mode != "single":
+            raise UsageError(f"light.depth: probe needs light.strategy {strategies_that('visible')} (a probed "
+                             "particle must stay "
                              f"visible) and run.mode single; got strategy {light.strategy}, mode "
                              f"{sections['run'].mode}")
         if not _has_baseline(sections["pattern"].calibration):
@@ -694,8 +698,9 @@ def _check_lock(source: "SourceConfig", output: Any, pattern: "PatternConfig", l
     if "kms" not in output.outputs:
         fail("needs output kms (its flips say when the projector's refreshes are), got "
              + ", ".join(output.outputs))
-    if light.strategy not in ("pulse", "flash"):
-        fail(f"times the pulse or the flash to the exposure: needs light.strategy pulse or flash, got {light.strategy}")
+    if not strategy_entry(light.strategy).exposing:
+        fail(f"times the pulse or the flash to the exposure: needs light.strategy {strategies_that('exposing')}, "
+             f"got {light.strategy}")
     refresh_ms = 1e3 / pattern.refresh_hz
     if not 0 < source.camera_exposure_ms <= refresh_ms:
         fail(f"needs a fixed camera_exposure_ms inside one projector refresh (0 < exposure <= {refresh_ms:.2f} ms "

@@ -70,8 +70,11 @@ DIM_REST = 2
 
 
 def rest_for(strategy: str) -> int:
-    """The default ``rest`` for holes of ``strategy`` (``dim``: ``DIM_REST``; else ``REST``)."""
-    return DIM_REST if strategy == "dim" else REST
+    """The default ``rest`` for holes of ``strategy`` (its :class:`~antiscatter.strategies.Strategy`'s:
+    ``dim`` ``DIM_REST``, the others ``REST``)."""
+    from .strategies import strategy_entry
+
+    return strategy_entry(strategy).rest
 
 
 class HoleLevels:

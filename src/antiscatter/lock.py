@@ -28,6 +28,11 @@ from .errors import UsageError
 
 __all__ = ["PhaseLock", "display_lag", "lock_check", "GAIN", "DELAY", "LOCKED_WITHIN"]
 
+#: the locked loop's one timing margin (seconds): a frame is taken to be read this long after its
+#: exposure ends, and a flip asked for later than this before its vertical blank misses it
+#: (runtime's loop, config.locked_light_reaches and the twin's model of the loop all use it)
+FLIP_MARGIN_S = 1e-3
+
 #: the frames a new duration may take to apply: the corrections asked for that long ago or less
 #: are taken as still to come (a Smith predictor), so the loop does not ask for them again
 DELAY = 4

@@ -139,7 +139,7 @@ def _worker(detector_name: str, params: Any, ring_spec: tuple | None, requests: 
     if parent and not _die_with_parent(parent, signal_it=signal_it):
         return
     from .detection import make_detector
-    from .runtime import time_stages
+    from .system import time_stages
 
     ring = FrameRing(ring_spec[0], ring_spec[1], ring_spec[2], name=ring_spec[3]) if ring_spec else None
     orphaned = False

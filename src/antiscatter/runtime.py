@@ -18,24 +18,25 @@ import time
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterator, Mapping, TextIO
+from typing import Any, Callable, Iterator, TextIO
 
 import cv2
 import numpy as np
 
 from .config import Config, light_ahead_reaches, parse_size
-from .detection import Detector, Pooled, check_frame_size, make_detector
+from .detection import Detector, check_frame_size, make_detector
 from .detections import Detections
 from .errors import UsageError, check_output_path
 from .writing import CsvFile
 from .levels import HoleLevels
+from .lock import FLIP_MARGIN_S
 from .outputs import LightOutput, check_output, open_output
-from .pattern import camera_light, grow_holes, render_pattern, scale_mapping
-from .probe import Intervals
+from .pattern import scale_mapping
 from .sources import FrameSource, open_source, parse_crop
 from .sources.base import FrameClock, seconds_text
 from .stats import RunningStats
-from .tracking import PREDICT_AHEAD
+from .strategies import strategy_entry
+from .system import Exposure, LoopSettings, Step, System, finish_stages, make_tracker, time_stages
 
 __all__ = ["REPORT_COLUMNS", "metrics_columns", "time_stages", "finish_stages", "Pacer", "RunSummary", "run",
            "set_niceness", "StopFlag", "LatestSlot", "apply_process_controls", "MODES"]
@@ -88,38 +89,6 @@ def _opencv_threads(threads: int) -> Iterator[None]:
         yield
     finally:
         cv2.setNumThreads(previous)
-
-
-def time_stages(detector: Detector, image: np.ndarray | Pooled, *,
-                clock: Callable[[], int] = time.perf_counter_ns, defer: bool = False) -> tuple[Detections, list[int]]:
-    """Run the detector's stages on one frame, timing each: (detections, nanoseconds per stage).
-
-    defer: stop before the stages marked ``after`` (learning for the next frames): the
-    detections are known without them; :func:`finish_stages` runs them later and adds their
-    times to the list.  The one place stages are timed; ``run`` and ``bench`` both use it.
-    """
-    value = image
-    durations: list[int] = []
-    t_prev = clock()
-    for stage in detector.stages:
-        if defer and stage.after:
-            break
-        value = stage.run(value)
-        t_now = clock()
-        durations.append(t_now - t_prev)
-        t_prev = t_now
-    return value, durations
-
-
-def finish_stages(detector: Detector, detections: Detections, durations: list[int], *,
-                  clock: Callable[[], int] = time.perf_counter_ns) -> None:
-    """Run the stages :func:`time_stages` deferred (those after ``len(durations)``), timed, their
-    nanoseconds appended to ``durations``."""
-    value = detections
-    for stage in detector.stages[len(durations):]:
-        t_prev = clock()
-        value = stage.run(value)
-        durations.append(clock() - t_prev)
 
 
 class Pacer:
@@ -291,37 +260,40 @@ def _open_source(config: Config, detector: Detector) -> FrameSource:
                        working_size=detector.working_size if sc.camera_lores else None)
 
 
-@dataclass
-class _Record:
-    """One frame on its way through the pipeline."""
+def _make_system(config: Config, detector: Detector, tracker: Any, camera_size: tuple[int, int], calibration: Any,
+                 *, buffers: int, defer: bool) -> System:
+    """The run's :class:`~antiscatter.system.System`: its mapping (the configured matrix, else the
+    calibration's, else the camera scaled to the projector), levels and depth probe from ``config``."""
+    light, pattern = config.light, config.pattern
+    projector_size = (pattern.width, pattern.height)
+    mapping = pattern.matrix()
+    if mapping is None and calibration is not None:
+        mapping = calibration.homography
+    if mapping is None:
+        mapping = scale_mapping(camera_size, projector_size)
+    probe = None
+    if light.depth == "probe":
+        from .probe import DepthProbe
 
-    frame: Any
-    t0: int
-    t1: int
-    detections: Detections
-    stage_ns: list[int]
-    track_ns: int
-    track_ids: np.ndarray | None
-    pattern: Any  # the holes (Detections) until rendered, then the (H, W) uint8 pattern
-    t_processed: int  # when rendering began
-    t_pattern: int  # when rendering ended
-    probes: Mapping = field(default_factory=dict)  # depth probing: each track's interval in this pattern
-    hole_ids: Any = None  # the track ids of this pattern's holes
-    intervals: Mapping | None = None  # depth probing with pulse: each track's whole remaining interval
-    exposure: Any = None  # pulse with probing, levels or prediction: the pattern for the next exposure
-    exposure_holes: Any = None  # pulse with prediction: its holes (Detections), for the time it is on
-    rested_ids: Any = None  # the track ids of this pattern's holes left fully dark (HoleLevels.rest)
-    learned: threading.Event | None = None  # the detector's deferred stages are done (None: none pending)
-
-
-@dataclass(frozen=True)
-class _Exposed:
-    """A frame's exposure light and what the next frame's processing needs to know of it."""
-
-    light: np.ndarray | None  # the light (projector pixels); None: the lamp was off
-    unlit_ids: Any = None  # the tracks whose holes it holds (none under a flash)
-    rested_ids: Any = None  # of them, those fully dark (HoleLevels.rest)
-    probes: Mapping = field(default_factory=dict)  # depth probing: each track's interval in it
+        if calibration is None or calibration.baseline_m is None:
+            raise UsageError(f"{pattern.calibration}: light.depth probe needs a calibration with a "
+                             "baseline (measured at two or more distances)")
+        probe = DepthProbe(calibration.mapping_at, near_m=light.near_m, far_m=light.far_m,
+                           dim_level=light.dim_level, projector_size=projector_size, min_worth=light.min_worth)
+    # each hole's own light (dim, or pulse while the camera exposes): tracked, not probed
+    strategy = strategy_entry(light.strategy)
+    levels = (HoleLevels(light.dim_level, floor=min(light.min_level, light.dim_level),
+                         rest=light.rest if probe is None else 0)
+              if light.levels == "adaptive" and strategy.visible and tracker is not None else None)
+    tc = config.track
+    settings = LoopSettings(strategy=light.strategy, dim_level=light.dim_level, flash_level=light.flash_level,
+                            predict=tc.predict, latency_s=tc.latency_ms / 1e3 if tc.latency_ms >= 0 else None,
+                            display_lag_s=pattern.display_lag_ms / 1e3, refresh_s=1.0 / pattern.refresh_hz,
+                            grow=pattern.grow, grow_from=pattern.grow_from, margin=pattern.margin,
+                            compensate=bool(light.compensate) and strategy.exposure != "flash"
+                            and config.run.mode == "single")
+    return System(detector, tracker, mapping=mapping, camera_size=camera_size, projector_size=projector_size,
+                  settings=settings, levels=levels, probe=probe, defer=defer, buffers=buffers)
 
 
 #: frames per second of a folder of images, which has no clock of its own, when the run is not
@@ -330,25 +302,20 @@ FOLDER_FPS = 60.0
 
 
 class _Pipeline:
-    """Per-run state shared by the execution modes: process a frame, emit a result."""
+    """Per-run state shared by the execution modes: the I/O around the :class:`~antiscatter.system.System`'s
+    per-frame step (outputs and their light, CSVs, panel, recording, the locked loop's lights)."""
 
     def __init__(self, config: Config, detector: Detector, tracker: Any, source: FrameSource, calibration: Any,
                  outputs: list[LightOutput], metrics_writer: Any, detections_writer: Any,
                  columns: list[str], summary: RunSummary, buffers: int) -> None:
         self.config = config
         self.detector = detector
-        self.tracker = tracker
         if tracker is not None:
             tracker.set_frame_size(source.size)  # motion settings for 800 px wide frames; the view's edges
         self.outputs = outputs
         self.metrics_writer = metrics_writer
         self.detections_writer = detections_writer
         self.summary = summary
-        self.projector_size = (config.pattern.width, config.pattern.height)
-        mapping = config.pattern.matrix()
-        if mapping is None and calibration is not None:
-            mapping = calibration.homography
-        self.mapping = scale_mapping(source.size, self.projector_size) if mapping is None else mapping
         # the tracker's clock: a camera's sensor time; a file's or the simulator's own frame times
         # (replays run faster or slower than they were taken, and velocities are per scene second):
         # a video's presentation times, a folder's index over this interval
@@ -358,50 +325,23 @@ class _Pipeline:
             self.frame_interval = 1.0 / rate
         # the frame's true time: the tracker's, and in the CSVs and the MCAP log (a live source's as UNIX time)
         self.frame_clock = FrameClock(live=self.frame_interval is None, interval_s=self.frame_interval or 0.0)
-        self.probe = None
-        self.shown_probes: Mapping = {}  # each track's interval in the pattern the next exposure sees
-        self.shown_exposure: np.ndarray | None = None  # and that pattern (probing: verdicts are judged by it)
-        self.unlit_ids: np.ndarray | None = None  # tracks whose holes the next exposure is taken under
-        self.rested_ids: np.ndarray | None = None  # of them, those whose holes are fully dark (levels' rest)
-        self.last_capture: float | None = None  # seconds, the last frame's capture time
-        self.frame_period: float | None = None  # seconds, running mean of the capture interval
-        if config.light.depth == "probe":
-            from .probe import DepthProbe
-
-            if calibration is None or calibration.baseline_m is None:
-                raise UsageError(f"{config.pattern.calibration}: light.depth probe needs a calibration with a "
-                                 "baseline (measured at two or more distances)")
-            self.probe = DepthProbe(calibration.mapping_at, near_m=config.light.near_m, far_m=config.light.far_m,
-                                    dim_level=config.light.dim_level, projector_size=self.projector_size,
-                                    min_worth=config.light.min_worth)
-        width, height = self.projector_size
-        self.buffers = [np.empty((height, width), np.uint8) for _ in range(buffers)]
-        self.next_buffer = 0
-        self.latency_estimate = 0.0  # seconds, running mean of the measured capture-to-light time
-        light = config.light
-        self.hole_level = round(light.dim_level * 255) if light.strategy == "dim" else 0
-        self.flash_image = (np.full((height, width), round(light.flash_level * 255), np.uint8)
-                            if light.strategy == "flash" else None)
-        # pulse: while the camera exposes, the last pattern with its holes lifted to dim_level
-        self.pulse_level = round(light.dim_level * 255) if light.strategy == "pulse" else None
-        self.exposing = self.flash_image is not None or self.pulse_level is not None
+        self.camera_fps = source.fps  # the source's nominal rate (the panel's recordings)
+        # the detector's learning for the next frames (stages marked ``after``) runs once the
+        # pattern is out: in single mode by emit, with threads by the process thread meanwhile
+        # (a worker process runs its detector whole)
+        self.system = _make_system(config, detector, tracker, source.size, calibration, buffers=buffers,
+                                   defer=config.run.mode in ("single", "threads"))
+        self.learn_on_emit = config.run.mode == "single"
+        system = self.system
+        width, height = system.projector_size
+        self.exposing = system.flash_image is not None or system.pulse_level is not None
         # the camera locked to the projector: the exposure's light goes out with each new pattern,
         # the pattern itself once that light's refresh is over (run_locked)
         self.locked = config.source.camera_lock
         self.phase_error_ns: int | None = None  # locked: the last exposure's start against its target
-        # each hole's own light (dim, or pulse while the camera exposes): tracked, not probed
-        self.levels = (HoleLevels(light.dim_level, floor=min(light.min_level, light.dim_level),
-                                  rest=light.rest if self.probe is None else 0)
-                       if light.levels == "adaptive" and light.strategy in ("dim", "pulse")
-                       and tracker is not None else None)
         self.full_image = np.full((height, width), 255, np.uint8)
         self.last_pattern: np.ndarray | None = None  # the pattern the lamp shows between exposures
         self.pulse_image: np.ndarray | None = None  # the last pattern, lifted (pulse)
-        self._lifted: np.ndarray | None = None  # the buffer pulse_image is lifted into
-        self.exposure_buffer = (np.empty((height, width), np.uint8)  # pulse with probing, levels or
-                                if (self.probe is not None or self.levels is not None  # prediction: the
-                                    or (tracker is not None and config.track.predict))  # lifted pattern
-                                and self.pulse_level is not None else None)
         self.refresh_s = 1.0 / config.pattern.refresh_hz
         self.display_lag_s = config.pattern.display_lag_ms / 1e3  # from a flip to its light on the scene
         self.refresh_ns = int(round(self.refresh_s * 1e9))
@@ -417,27 +357,15 @@ class _Pipeline:
         # locked, a display lagging more: this frame's light goes out after its pattern, for the
         # exposure after the next (runtime.light_after)
         self.post = False
-        self._pattern_before: _Exposed | None = None  # locked: the pattern the last frame showed
+        self._pattern_before: Exposure | None = None  # locked: the pattern the last frame showed
         # (kept only where a light may go out after the pattern: a refresh of slack for the lock's error)
-        self._pattern_copies = ([np.empty((config.pattern.height, config.pattern.width), np.uint8) for _ in range(2)]
+        self._pattern_copies = ([np.empty((height, width), np.uint8) for _ in range(2)]
                                 if self.locked and not light_ahead_reaches(config.source, config.pattern,
                                                                            slack_s=self.refresh_s)
                                 else [])
-        self._made: _Exposed | None = None  # the light the last frame made, for the exposure it reaches
-        self._flashed: _Exposed | None = None  # the light that went out ahead, for the next exposure
+        self._made: Exposure | None = None  # the light the last frame made, for the exposure it reaches
+        self._flashed: Exposure | None = None  # the light that went out ahead, for the next exposure
         self._ahead_buffers: list[np.ndarray] = []  # (two: the next one goes out before it is judged)
-        self.compensate = bool(light.compensate) and light.strategy != "flash" and config.run.mode == "single"
-        # the detector's learning for the next frames (stages marked ``after``) runs once the
-        # pattern is out: in single mode by emit, with threads by the process thread meanwhile
-        # (a worker process runs its detector whole)
-        self.defer = config.run.mode in ("single", "threads")
-        self.learn_on_emit = config.run.mode == "single"
-        # the light the next exposure gets, in camera pixels (pattern.camera_light), into one buffer:
-        # the detector reads it in the next frame's detection, before the next one is made
-        self.camera_from_projector = np.linalg.inv(self.mapping)
-        self.camera_size = source.size
-        self.camera_fps = source.fps  # the source's nominal rate (the panel's recordings)
-        self.light_buffer = np.empty(source.size[::-1], np.uint8) if self.compensate else None
         self.columns = columns
         self.index_of = {c: i for i, c in enumerate(columns)}
         self.stage_columns = [f"{st.label} Duration (s)" for st in detector.stages]
@@ -454,82 +382,27 @@ class _Pipeline:
         self._closers: list[threading.Thread] = []
         self._dark: np.ndarray | None = None
 
+    @property
+    def tracker(self) -> Any:
+        return self.system.tracker
+
     def process(self, frame: Any, t0: int, t1: int, found: Detections | None = None,
-                stage_ns: list[int] | None = None) -> _Record:
+                stage_ns: list[int] | None = None) -> Step:
         """Detect (unless ``found`` came from a detector process), track, render the pattern."""
         return self.render(self.analyse(frame, t0, t1, found, stage_ns))
 
     def analyse(self, frame: Any, t0: int, t1: int, found: Detections | None = None,
-                stage_ns: list[int] | None = None) -> _Record:
-        """Detect and track; the holes to draw wait in ``record.pattern`` until :meth:`render`."""
-        clock = self.clock
-        tc = self.config.track
-        learned = None
-        if found is None:
-            # a frame the camera's ISP also scaled (Frame.pooled) goes to the detector as that
-            detections, stage_ns = time_stages(self.detector, frame.image if frame.pooled is None else frame.pooled,
-                                               clock=clock, defer=self.defer)
-            if len(stage_ns) < len(self.detector.stages):
-                learned = threading.Event()
-        else:
-            detections = found
-        t_processed = t1 + sum(stage_ns)
-        holes, track_ns, track_ids, probes, intervals, exposure_holes = detections, 0, None, {}, None, None
-        if self.tracker is not None:
-            t_track = clock()
-            captured = self.frame_clock.source_ns(frame) / 1e9
-            tracks = self.tracker.update(detections, captured, unlit=self.unlit_ids)
-            track_ids = tracks.detection_ids
-            prediction = self.tracker.snapshot()
-            if self.last_capture is not None and captured > self.last_capture:
-                period = captured - self.last_capture
-                self.frame_period = period if self.frame_period is None else 0.9 * self.frame_period + 0.1 * period
-            self.last_capture = captured
-            if tc.predict:
-                latency = tc.latency_ms / 1e3 if tc.latency_ms >= 0 else self.latency_estimate
-                if self.pattern_on_ns is not None:  # the locked loop knows when (the light ahead)
-                    latency = self.pattern_on_ns / 1e9 - captured - self.display_lag_s
-                # the pattern stays on until the next one, a frame period later: each hole where its
-                # particle is halfway through that time (PREDICT_AHEAD), not where it is when it goes on
-                holes = prediction.holes(captured + latency + self.display_lag_s
-                                         + PREDICT_AHEAD * (self.frame_period or 0.0))
-            else:
-                holes = prediction.holes(captured)
-            if self.frame_period is not None and self.compensate:
-                # the camera sees our holes (and no flash): where the tracked particles should be in
-                # the next frame, faint light is them, dimmed under their holes (open loop this only
-                # adds noise; history: docs/decisions/005-light-and-pattern-tuning.md)
-                self.detector.expect(prediction.holes(captured + self.frame_period))
-            if self.probe is not None:  # this exposure's verdicts, then the next intervals to try
-                seen = Detections(detections.centres, detections.radii, detections.scores, tracks.detection_ids,
-                                  detections.cut)
-                coasting = tracks.confirmed & (tracks.misses > 0)
-                self.probe.observe(seen, self.shown_probes, tracks.ids[coasting], exposure=self.shown_exposure,
-                                   coasting_centres=tracks.centres[coasting])
-                self.probe.forget(tracks.ids)
-                probes, covers = self.probe.plan(holes)
-                if self.pulse_level is not None:
-                    intervals = covers
-            if self.pulse_level is not None and tc.predict:
-                # what the first exposure under this pattern -- the first to start after it goes on --
-                # is taken under, drawn for its time: the probes' halves it judges for its start; the
-                # lifted pattern, on for a projector refresh from then, for the middle of that
-                # (history: docs/decisions/005-light-and-pattern-tuning.md)
-                period = self.frame_period or 0.0
-                started = captured - frame.exposure_ns / 2e9  # the camera's frames: stamped mid-exposure
-                on = latency + self.display_lag_s  # until the pattern is light on the scene
-                next_exposure = started + (period * max(1, math.ceil(on / period - 1e-9)) if period else on)
-                exposure_holes = prediction.holes(next_exposure if self.probe is not None
-                                                  else next_exposure + self.refresh_s / 2)
-            if self.levels is not None:  # how bright each came back under its own hole (or probe: its verdict)
-                self.levels.update(detections, track_ids, self.unlit_ids if self.probe is None else self.probe.dimmed,
-                                   tracks.ids, tracks.ids[tracks.confirmed], rested=self.rested_ids)
-            track_ns = clock() - t_track
-            t_processed = clock()
-        return _Record(frame, t0, t1, detections, stage_ns, track_ns, track_ids, holes, t_processed, 0, probes,
-                       intervals=intervals, exposure_holes=exposure_holes, learned=learned)
+                stage_ns: list[int] | None = None) -> Step:
+        """Detect and track (:meth:`System.analyse`) at the frame's capture time: the camera's
+        sensor time, or the file's or simulator's own frame time (``FrameClock.source_ns``)."""
+        captured = self.frame_clock.source_ns(frame) / 1e9
+        on_s = self.pattern_on_ns / 1e9 if self.pattern_on_ns is not None else None  # the locked loop knows
+        # a frame the camera's ISP also scaled (Frame.pooled) goes to the detector as that
+        image = frame.image if frame.pooled is None else frame.pooled
+        return self.system.analyse(image, captured, exposure_s=frame.exposure_ns / 1e9, on_s=on_s,
+                                   found=found, stage_ns=stage_ns, frame=frame, t0=t0, t1=t1)
 
-    def learn(self, rec: _Record) -> None:
+    def learn(self, rec: Step) -> None:
         """Run the detector's deferred stages for ``rec`` (its learning for the next frames), timed
         into its stage times; always marks them done, so nothing waits on a failed one."""
         if rec.learned is None or rec.learned.is_set():
@@ -539,65 +412,11 @@ class _Pipeline:
         finally:
             rec.learned.set()
 
-    def render(self, rec: _Record) -> _Record:
+    def render(self, rec: Step) -> Step:
         """Draw the record's holes into the next pattern buffer."""
-        t_start = self.clock()
-        buffer = self.buffers[self.next_buffer]
-        self.next_buffer = (self.next_buffer + 1) % len(self.buffers)
-        settings = self.config.pattern
+        return self.system.render(rec)
 
-        def grown(holes: Detections) -> Detections:
-            return grow_holes(holes, grow=settings.grow, start=settings.grow_from, frame_width=self.camera_size[0])
-
-        if self.probe is not None:
-            # a probe the camera sees is drawn as found: grown, its halves would overlap and its verdict
-            # blur; the whole intervals dark between pulsed exposures grow
-            holes, margin = rec.pattern, settings.margin
-            rec.hole_ids = Intervals.of(rec.probes).ids  # the holes worth drawing (DepthProbe.min_worth)
-            grey = self.levels.grey(holes.track_ids) if self.levels is not None else None
-            # pulse: between exposures each track's whole interval is dark; the probe's half is
-            # only needed while the camera looks, lifted to the dim level (or each track's own)
-            rec.pattern = self.probe.render(holes if rec.intervals is None else grown(holes),
-                                            rec.probes if rec.intervals is None else rec.intervals,
-                                            size=self.projector_size, margin=margin, out=buffer,
-                                            hole=grey if grey is not None and rec.intervals is None
-                                            else self.hole_level, given_only=True)
-            if rec.intervals is not None:
-                # (holes of one prediction for another time: the same tracks in the same order, so
-                # the same levels)
-                exposed = holes if rec.exposure_holes is None else rec.exposure_holes
-                rec.exposure = self.probe.render(exposed, rec.probes, size=self.projector_size, margin=margin,
-                                                 out=self.exposure_buffer,
-                                                 hole=self.pulse_level if grey is None else grey, given_only=True)
-        else:
-            holes = grown(rec.pattern)
-            rec.hole_ids = holes.track_ids
-            draw = {"size": self.projector_size, "mapping": self.mapping, "margin": self.config.pattern.margin}
-            grey = self.levels.grey(holes.track_ids) if self.levels is not None else None
-            if self.levels is not None:
-                rec.rested_ids = self.levels.rested(holes.track_ids)
-            if rec.exposure_holes is not None:
-                # pulse, predicted: the lifted pattern drawn for its own time (a second drawing, 0.28 ms
-                # median for 230 holes at 1280x800 on the development VM), each hole at its own level or
-                # at the pulse's
-                # (the same tracks as ``holes``, in the same order: the same levels)
-                rec.exposure = render_pattern(grown(rec.exposure_holes), out=self.exposure_buffer,
-                                              hole=self.pulse_level if grey is None else grey, **draw)
-                rec.pattern = render_pattern(holes, out=buffer, **draw)
-            elif grey is not None and self.pulse_level is not None:
-                # pulse: each hole at its own level while the camera looks; between exposures the same
-                # holes dark, wherever the lifted pattern is not full (40 us, not a second drawing's 460)
-                rec.exposure = render_pattern(holes, out=self.exposure_buffer, hole=grey, **draw)
-                rec.pattern = (cv2.compare(rec.exposure, 255, cv2.CMP_EQ, dst=buffer) if self.pulse_level < 255
-                               else render_pattern(holes, out=buffer, **draw))
-            else:  # dim holes at their own levels, or every hole at one
-                rec.pattern = render_pattern(holes, out=buffer, hole=self.hole_level if grey is None else grey,
-                                             **draw)
-        rec.t_pattern = self.clock()
-        rec.t_processed = t_start
-        return rec
-
-    def _expose(self, rec: _Record, shown: np.ndarray) -> np.ndarray:
+    def _expose(self, rec: Step, shown: np.ndarray) -> np.ndarray:
         """The light the next exposure is taken under: with pulse the pattern with its holes lifted
         (kept as ``pulse_image``), else the pattern ``shown``, which is kept as ``last_pattern``."""
         exposed = shown
@@ -605,16 +424,11 @@ class _Pipeline:
             # flash and pulse run in mode single: the next capture, and the restore after it, come
             # before the next pattern is drawn, so these buffers are still intact then (no copies)
             self.last_pattern = shown
-            if self.pulse_level is not None:
-                if rec.exposure is not None and self.light_on:  # drawn lifted: probing's halves, levels, prediction
-                    self.pulse_image = exposed = rec.exposure
-                else:
-                    # cv2.max: a tenth of np.maximum's time against a scalar (43 against 420 us at 1280x800)
-                    self.pulse_image = exposed = cv2.max(shown, self.pulse_level, dst=self._lifted)
-                    self._lifted = self.pulse_image
+            if self.system.pulse_level is not None:  # drawn lifted: probing's halves, levels, prediction
+                self.pulse_image = exposed = self.system.lift(rec, shown, drawn=self.light_on)
         return exposed
 
-    def after_exposure(self, rec: _Record) -> None:
+    def after_exposure(self, rec: Step) -> None:
         """Locked camera: the pattern on every output once the exposure's light has had its refresh
         (``kms`` waits for that light's flip, so the pattern lands at the next one)."""
         image = self.last_pattern if self.last_pattern is not None else self.full_image
@@ -626,8 +440,8 @@ class _Pipeline:
     def flash(self) -> int:
         """Show the next exposure's light on every output -- the uniform detection flash, or the
         last pattern with its holes lifted (pulse); the time it went on (monotonic ns)."""
-        if self.flash_image is not None:
-            image = self.flash_image
+        if self.system.flash_image is not None:
+            image = self.system.flash_image
         else:
             image = self.pulse_image if self.pulse_image is not None else self.full_image
         if not self.light_on:
@@ -640,7 +454,7 @@ class _Pipeline:
         """Locked, the light ahead: the exposure light the last frame made goes out on every output
         now (at the next flip), before frame ``before`` - 1 is processed; that frame's :meth:`emit`
         then shows its pattern, and the exposure after it is judged by this light."""
-        made = self._made if self._made is not None else _Exposed(self.full_image)
+        made = self._made if self._made is not None else Exposure(self.full_image)
         image = made.light
         if image is not None:  # (its buffers are redrawn before it is judged)
             if len(self._ahead_buffers) < 2:
@@ -648,10 +462,10 @@ class _Pipeline:
             self._ahead_buffers.reverse()
             image = self._ahead_buffers[0]
             np.copyto(image, made.light)
-            made = _Exposed(image, made.unlit_ids, made.rested_ids, made.probes)
+            made = Exposure(image, made.unlit_ids, made.rested_ids, made.probes)
         self._flashed = made
-        if self.flash_image is not None:
-            image = self.flash_image
+        if self.system.flash_image is not None:
+            image = self.system.flash_image
         if image is None or not self.light_on:
             image = np.zeros_like(self.full_image)
         for output in self.outputs:
@@ -665,7 +479,7 @@ class _Pipeline:
         for output in self.outputs:
             output.restore(image)
 
-    def emit(self, rec: _Record, dropped: int) -> bool:
+    def emit(self, rec: Step, dropped: int) -> bool:
         """Show the pattern, log the frame; True when an output asked to stop."""
         clock = self.clock
         t_show = clock()
@@ -676,7 +490,7 @@ class _Pipeline:
             shown = self._dark
         if self.locked and not (self.ahead or self.post):  # the next exposure's light at its flip; the pattern once it
             exposed = self._expose(rec, shown)  # has been on (after_exposure)
-            light = self.flash_image if self.flash_image is not None else exposed
+            light = self.system.flash_image if self.system.flash_image is not None else exposed
             if not self.light_on:
                 light = shown
             while self.display.next_flip_ns(self.refresh_ns) < self.lift_at_ns - self.refresh_ns // 2:  # spare flips:
@@ -697,34 +511,25 @@ class _Pipeline:
         if not self.locked or self.ahead or self.post:
             exposed = self._expose(rec, shown)
         # the next exposure is taken under this pattern, or its light (its holes, none under a flash)
-        unlit = rec.hole_ids if self.light_on and self.flash_image is None else None
-        made = self._made = _Exposed(exposed if self.light_on else None, unlit,
-                                     rec.rested_ids if unlit is not None else None,
-                                     rec.probes if self.light_on else {})
+        made = self._made = self.system.made(rec, exposed if self.light_on else None)
         if self.ahead:  # ... unless the last frame's went out ahead of this one: the next exposure is under it
             made = self._flashed
         elif self.post:  # ... or none went out for it (the first light after a pattern): it is under the
-            made = self._pattern_before or _Exposed(self.full_image)  # pattern shown before this one
+            made = self._pattern_before or Exposure(self.full_image)  # pattern shown before this one
         if self._pattern_copies:  # (kept for that: mode single draws every pattern into one buffer)
             self._pattern_copies.reverse()  # (two: the last is judged by until the next frame is processed)
             np.copyto(self._pattern_copies[0], shown)
-            dark = rec.hole_ids if self.light_on else None  # between exposures its holes are dark
-            self._pattern_before = _Exposed(self._pattern_copies[0] if self.light_on else None, dark, dark, {})
-        self.unlit_ids, self.rested_ids = made.unlit_ids, made.rested_ids
-        if self.probe is not None:  # mode single: the buffer stays intact until the next frame is processed
-            self.shown_probes = made.probes
-            self.shown_exposure = made.light
-        if self.compensate:  # what the next exposure will be lit by: this pattern on the scene
-            self.detector.set_light(None if made.light is None else
-                                    camera_light(made.light, self.camera_from_projector, self.camera_size,
-                                                 out=self.light_buffer))
+            self._pattern_before = self.system.made(  # (between exposures its holes are dark)
+                rec, self._pattern_copies[0] if self.light_on else None, pattern=True)
+        # (mode single: the buffer stays intact until the next frame is processed)
+        self.system.expose(made)
         self._record(rec.frame)
         latency_ns = shown_ns - rec.frame.timestamp_ns
         summary = self.summary
         summary.output_times.append(shown_ns)
         summary.latencies_ns.append(latency_ns)
         summary.dropped += dropped
-        self.latency_estimate += (latency_ns / 1e9 - self.latency_estimate) * (0.1 if summary.frames else 1.0)
+        self.system.observe_latency(latency_ns / 1e9)
         values = {"Capture Duration (s)": (rec.t1 - rec.t0) / 1e9,
                   "Total frame processing time (s)": (rec.t1 - rec.t0 + sum(rec.stage_ns)) / 1e9,
                   "Pattern Rendering Duration (s)": (rec.t_pattern - rec.t_processed) / 1e9,
@@ -849,7 +654,7 @@ class _Pipeline:
                 if path.is_file() and path.stat().st_size == 0:
                     path.unlink()
 
-    def _publish(self, rec: _Record, latency_ns: int, dropped: int) -> None:
+    def _publish(self, rec: Step, latency_ns: int, dropped: int) -> None:
         summary = self.summary
         sample = {"t": time.monotonic(), "latency_ms": latency_ns / 1e6, "particles": float(len(rec.detections))}
         stats = None
@@ -903,16 +708,8 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
              "Tracking Duration (s)", "Pattern Rendering Duration (s)", "Output Duration (s)",
              "End-to-end Latency (s)"]
     tc = config.track
-    tracker = None
-    if tc.enabled:
-        from .tracking import Tracker
-        tracker = Tracker(confirm_hits=tc.confirm_hits, max_misses=tc.max_misses, keep_misses=tc.keep_misses,
-                          max_dark=tc.max_dark, revive_frames=tc.revive_frames, merge_reach=tc.merge_reach,
-                          # probing: a new hole spans its line, and a particle's light is not known
-                          flow_holes=config.light.depth != "probe",
-                          flux_ratio=tc.flux_ratio if config.light.depth != "probe" else 0.0,
-                          far_bright=tc.far_bright, accel_floor=tc.accel_floor,
-                          miss_cost=tc.miss_cost, flux_cost=tc.flux_cost)
+    # probing: a new hole spans its line, and a particle's light is not known
+    tracker = make_tracker(tc, probing=config.light.depth == "probe") if tc.enabled else None
     if tracker is None:
         timed.remove("Tracking Duration (s)")
     summary.durations = {c: RunningStats() for c in timed}
@@ -952,7 +749,7 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
               f"output {names}, mode {rc.mode}, light strategy {config.light.strategy}", file=log)
         for note in config.notes:
             print(f"note: {note}", file=log)
-        if (config.light.strategy in ("pulse", "flash") and getattr(source, "live", False)
+        if (strategy_entry(config.light.strategy).exposing and getattr(source, "live", False)
                 and not config.source.camera_lock):
             print(f"note: {config.light.strategy} on a free-running camera reads every other frame, each exposure "
                   "begun once its light is on screen (in the twin, co-located, pulse removed 0.856 against dim's "
@@ -1012,7 +809,7 @@ def _serve_panel(panel: Any, pipeline: _Pipeline, stop: "StopFlag", log: TextIO)
         return "stopping"
 
     pipeline.log = log
-    config, (width, height) = pipeline.config, pipeline.camera_size
+    config, (width, height) = pipeline.config, pipeline.system.camera_size
     rate = config.run.fps or (1 / pipeline.frame_interval if pipeline.frame_interval else None)
     panel.info.update({"source": config.source.spec, "detector": config.detector.name,
                        "strategy": config.light.strategy, "frame": f"{width} x {height} px",
@@ -1068,8 +865,8 @@ def _finished(summary: RunSummary, stop: "StopFlag", rc: Any) -> bool:
 
 #: frames a live source may deliver from before the flash went on (exposed under the last pattern)
 MAX_STALE_FRAMES = 3
-#: locked: a flip asked for later than this before a vertical blank is taken as missing it
-FLIP_MARGIN_NS = 1_000_000
+#: locked: a flip asked for later than this before a vertical blank is taken as missing it (ns)
+FLIP_MARGIN_NS = round(FLIP_MARGIN_S * 1e9)
 
 
 def light_ahead(next_flip: float, ready: float, light_by: float, refresh: float) -> bool:

@@ -6,9 +6,9 @@ simulator's 3-D particles in front of a background plane.  Time runs in
 projector refreshes (sub-frames).  Each camera frame is rendered with the light
 that was on during its exposure: the patterns the system displayed in those
 sub-frames, averaged, sampled where each particle sits in projector pixels,
-and warped onto the background plane.  The system under test -- the same
-detector, tracker, pattern rendering and mapping as ``antiscatter run`` --
-sees that frame; its pattern is ready ``latency`` after the exposure ends,
+and warped onto the background plane.  The system under test -- the
+:class:`~antiscatter.system.System` ``antiscatter run`` drives, built as run
+builds it -- sees that frame; its pattern is ready ``latency`` after the exposure ends,
 goes on at the next projector refresh and stays on until the next pattern, a
 frame later -- one pattern a frame, as ``run`` shows them, its predicted holes
 drawn for the middle of that time (``tracking.PREDICT_AHEAD``).
@@ -45,44 +45,34 @@ the whole interval that may hold the particle dark).
 
 from __future__ import annotations
 
-import copy
 import math
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping
+from typing import Any, Callable
 
 import cv2
 import numpy as np
 
 from .console import progress
 from .detection import make_detector
-from .detections import Detections
 from .errors import UsageError
 from .levels import LEVELS, HoleLevels, rest_for
-from .pattern import GROW, GROW_FROM, GROW_REFERENCE_WIDTH, camera_light, grow_holes, render_pattern, scale_mapping
+from .pattern import GROW, GROW_FROM, scale_mapping
 from .simulate import make_scene
-from .probe import MIN_WORTH, DepthProbe, Intervals
-from .tracking import PREDICT_AHEAD, Prediction
+from .probe import MIN_WORTH, DepthProbe
+from .strategies import strategies_that, strategy_entry, strategy_names
+from .system import Exposure, LoopSettings, Step, System, make_tracker
 
 
 @dataclass(frozen=True)
-class _Fixed:
-    """A queued pattern drawn once (light, 0..1) and the track ids of its holes."""
+class _Light:
+    """One step's light as the twin integrates it (projector pixels, float32, 1 = full), and what
+    the system takes an exposure under it to have been."""
 
-    light: np.ndarray
-    ids: np.ndarray
-    holes: Detections  # pulse: the holes lifted while the camera exposes, drawn for that time
+    pattern: np.ndarray  # between exposures
+    exposure: np.ndarray  # while the camera exposes: pulse the holes lifted, flash the flash, else the pattern
+    made: Exposure | None  # what the system records for an exposure under ``exposure`` (None: nothing yet)
+    under_pattern: Exposure | None  # ... for one under ``pattern`` (run's locked chain of lights starting)
 
-
-@dataclass(frozen=True)
-class _Probing:
-    """A queued pattern of the ``probe`` mapping: tracks frozen at one update, and each one's interval."""
-
-    prediction: Prediction
-    probes: Mapping  # shown while the camera exposes
-    between: Mapping  # shown between exposures: the probes (dim), each whole interval (pulse)
-    at: float  # the time its holes are drawn for
-    exposure_at: float  # ... and those the next exposure is taken under (pulse: the probes' halves)
-    levels: HoleLevels | None  # each hole's light as it was when the pattern was made
 
 def _flip_lands(t: float, refresh: float) -> float:
     """When a flip asked for at ``t`` lands: the first refresh boundary after it (a display flips
@@ -180,10 +170,11 @@ class _LockedRun(_FreeRunning):
         return True
 
     def processed(self, start: float, end: float) -> float:
-        from .runtime import FLIP_MARGIN_NS, light_after, light_ahead
+        from .lock import FLIP_MARGIN_S
+        from .runtime import light_after, light_ahead
 
         r = self.refresh
-        margin = FLIP_MARGIN_NS / 1e9
+        margin = FLIP_MARGIN_S
         coming = start + self.period
         now = _flip_lands(max(end, self.pending), r)  # what a flip asked for on reading lands at
         posted, self.posted = self.posted, False
@@ -219,7 +210,8 @@ class _LockedRun(_FreeRunning):
 
 __all__ = ["TwinGeometry", "TwinRun", "simulate_loop", "default_runs", "backscatter_weight", "STRATEGIES", "MAPPINGS"]
 
-STRATEGIES = ("none", "dim", "pulse", "flash", "coast")
+#: the light strategies registered at import (antiscatter.strategies; TwinRun reads the registry)
+STRATEGIES = strategy_names()
 #: frames the system needs to start up (the detector's 16-frame background warm-up, the first
 #: tracks' confirmation); the ``_steady`` figures leave them out (at most half a run)
 SETTLE_FRAMES = 20
@@ -384,12 +376,12 @@ class TwinRun:
     def __post_init__(self) -> None:
         if self.levels not in LEVELS:
             raise ValueError(f"levels: got {self.levels!r}, allowed {', '.join(LEVELS)}")
-        if self.strategy not in STRATEGIES:
-            raise ValueError(f"strategy: got {self.strategy!r}, allowed {', '.join(STRATEGIES)}")
+        strategy = strategy_entry(self.strategy)  # (ValueError naming the allowed ones)
         if self.mapping not in MAPPINGS:
             raise ValueError(f"mapping: got {self.mapping!r}, allowed {', '.join(MAPPINGS)}")
-        if self.mapping == "probe" and self.strategy not in ("dim", "pulse"):
-            raise ValueError("mapping: probe needs strategy dim or pulse (a probed particle must stay visible)")
+        if self.mapping == "probe" and not strategy.visible:
+            raise ValueError(f"mapping: probe needs strategy {strategies_that('visible')} (a probed particle must "
+                             "stay visible)")
 
 
 #: 32 points spread evenly over the unit disc (a sunflower spiral): a disc's mean light is their mean
@@ -445,36 +437,6 @@ def backscatter_weight(scene: Any, geometry: "TwinGeometry", particles: dict[str
     return scene.full_light_brightness() * (geometry.camera_focal * particles["R"] / particles["Z"]) ** 2
 
 
-def _holes_pattern(holes: Detections, run: TwinRun, *, size: tuple[int, int], mapping: np.ndarray,
-                   buffer: np.ndarray, segments: DepthProbe | None = None,
-                   probes: Mapping | None = None, levels: HoleLevels | None = None,
-                   lifted: bool = False, frame_width: int = GROW_REFERENCE_WIDTH,
-                   grow: bool = True) -> np.ndarray:
-    """The projector pattern for ``holes`` (camera pixels) under the run's mapping; float 0..1.
-
-    segments: draw each hole along its particle's epipolar segment -- over ``probes``' interval
-    where given, over the whole near..far range otherwise -- instead of at ``mapping``.
-    levels: each hole's own light (dim holes, or pulsed ones while the camera exposes:
-    ``lifted``); None: ``dim_level`` for all.  ``grow``: the holes grow as the run says (``run.grow``,
-    :func:`~antiscatter.pattern.grow_holes`, for camera frames ``frame_width`` wide), as run's do
-    -- all but a probe the camera sees (grown, its halves would overlap).
-    """
-    if grow:
-        holes = grow_holes(holes, grow=run.grow, start=run.grow_from, frame_width=frame_width)
-    dim = run.strategy == "dim" or lifted
-    own = levels.grey(holes.track_ids) if dim and levels is not None else 0
-    if segments is not None:
-        # probing: only the holes the probe found worth drawing (its intervals); else the whole range
-        pattern = segments.render(holes, probes or {}, size=size, margin=run.margin_px, out=buffer, hole=own,
-                                  given_only=probes is not None)
-    else:
-        pattern = render_pattern(holes, size=size, mapping=mapping, margin=run.margin_px, out=buffer, hole=own)
-    light = pattern.astype(np.float32) / 255.0
-    if dim and levels is None:
-        np.maximum(light, run.dim_level, out=light)
-    return light
-
-
 def twin_scene(geometry: "TwinGeometry", preset: str, seed: int, current: float | None = None) -> Any:
     """The simulator's scene of ``preset`` as the twin's camera sees it: its frame size, field of
     view and frame rate (particles move a frame period of the twin's camera each step); ``current``
@@ -492,10 +454,218 @@ def twin_scene(geometry: "TwinGeometry", preset: str, seed: int, current: float 
     return scene
 
 
+def _twin_system(run: TwinRun, geometry: TwinGeometry, calibration: Any) -> System | None:
+    """The system under test, built for this configuration as ``run`` builds its own (None: no system,
+    the full lamp)."""
+    if not run.detector:
+        return None
+    probing, strategy = run.mapping == "probe", strategy_entry(run.strategy)
+    # motion settings scale with the width; probing: as run (system.make_tracker)
+    tracker = (make_tracker(probing=probing, frame_size=geometry.camera_size)
+               if strategy.tracks or run.predict or probing else None)
+    # holes along epipolar segments: probed intervals, or the whole range when depth is unknown
+    segments = None
+    if probing or (run.mapping == "range" and geometry.baseline_m > 0):
+        segments = DepthProbe(calibration.mapping_at if calibration is not None else geometry.plane_mapping,
+                              near_m=geometry.near_m, far_m=geometry.far_m, dim_level=run.dim_level,
+                              projector_size=geometry.projector_size, min_worth=run.min_worth)
+    rest = rest_for(run.strategy) if run.rest is None else run.rest
+    levels = (HoleLevels(run.dim_level, rest=0 if probing else rest)  # probing reads no rest
+              if run.levels == "adaptive" and strategy.visible and tracker is not None else None)
+    if run.mapping == "identity":
+        mapping = scale_mapping(geometry.camera_size, geometry.projector_size)
+    elif calibration is not None:
+        mapping = calibration.homography
+    else:
+        mapping = geometry.plane_mapping(geometry.working_depth_m)
+    # where the system believes its light lands behind the particles: the far working distance
+    far_mapping = (mapping if run.mapping == "identity" else
+                   calibration.mapping_at(geometry.far_m) if calibration is not None else
+                   geometry.plane_mapping(geometry.far_m))
+    settings = LoopSettings(strategy=run.strategy, dim_level=run.dim_level, flash_level=run.flash_level,
+                            predict=run.predict, display_lag_s=geometry.display_lag_s,
+                            refresh_s=1.0 / geometry.projector_hz, grow=run.grow, grow_from=run.grow_from,
+                            margin=run.margin_px,
+                            # as run: no compensation without a calibration, nor under a flash
+                            compensate=run.mapping != "identity" and strategy.exposure != "flash")
+    return System(make_detector(run.detector), tracker, mapping=mapping, camera_size=geometry.camera_size,
+                  projector_size=geometry.projector_size, settings=settings, levels=levels,
+                  probe=segments if probing else None, ranges=None if probing else segments,
+                  light_mapping=far_mapping)
+
+
+def _light_of(system: System, step: Step) -> _Light:
+    """The light of ``step``'s pattern as run shows it -- the pattern, the exposure's light (the
+    flash, or with pulse the pattern lifted) -- and what the system records of an exposure under each."""
+    light = system.lift(step, step.pattern)  # (pulse: the pattern lifted; else the pattern)
+    shown = system.flash_image if system.flash_image is not None else light
+    pattern = step.pattern.astype(np.float32) / 255.0
+    exposure = pattern if shown is step.pattern else shown.astype(np.float32) / 255.0
+    return _Light(pattern, exposure, system.made(step, light.copy()),
+                  system.made(step, step.pattern.copy(), pattern=True))
+
+
+class _View:
+    """The camera's view of the background plane, and the full lamp's light on it (the reference of
+    the scene light kept: the view's size, less what a blurred edge of the field spills outside it)."""
+
+    def __init__(self, geometry: TwinGeometry) -> None:
+        pw, ph = geometry.projector_size
+        self.size = geometry.camera_size
+        self.inverse = np.linalg.inv(geometry.plane_mapping(geometry.background_m))
+        self.lit_area = cv2.warpPerspective(np.ones((ph, pw), np.float32), self.inverse, self.size,
+                                            flags=cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
+                                            borderValue=0.0) > 0.5
+        lit_pixels = int(self.lit_area.sum())
+        # the pattern's defocus on the background, in camera pixels (a normalised disc; None: sharp)
+        self.blur = _disc_kernel(float(geometry.defocus_px(geometry.background_m))
+                                 * geometry.camera_focal / geometry.projector_focal)
+        self.reference = float(lit_pixels if self.blur is None else
+                               cv2.filter2D(self.lit_area.astype(np.float32), -1, self.blur,
+                                            borderType=cv2.BORDER_CONSTANT)[self.lit_area].sum())
+        if lit_pixels == 0:  # every figure would be 0 / 0
+            raise UsageError(f"baseline {geometry.baseline_m:g} m: the projector lights none of the camera's view "
+                             f"of the background {geometry.background_m:g} m away; allowed: a geometry whose views "
+                             "overlap (a smaller --baseline-m)")
+
+    def light(self, light: np.ndarray) -> np.ndarray:
+        """(H, W) float camera image of projector light ``light`` on the background plane."""
+        bg = cv2.warpPerspective(light, self.inverse, self.size, flags=cv2.INTER_NEAREST,
+                                 borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+        if self.blur is not None:  # the projector focused nearer or farther than the background
+            bg = cv2.filter2D(bg, -1, self.blur, borderType=cv2.BORDER_CONSTANT)
+        return bg
+
+
+class _Loop:
+    """The world around one system: time in projector refreshes, the light each refresh puts on the
+    particles and the background, the camera's exposures, and the patterns queued to go on."""
+
+    def __init__(self, run: TwinRun, geometry: TwinGeometry, scene: Any, system: System | None,
+                 latency_ms: float) -> None:
+        self.geometry, self.scene, self.system = geometry, scene, system
+        self.view = _View(geometry)
+        pw, ph = geometry.projector_size
+        self.full = np.ones((ph, pw), np.float32)
+        # the lamp is fully on until the first pattern is ready (the exposure's light: the flash)
+        flash = system.flash_image.astype(np.float32) / 255.0 if system is not None and system.flash_image is not None \
+            else self.full
+        self.displayed = _Light(self.full, flash, None, None)
+        self.queue: list[tuple[float, _Light]] = []  # (time the pattern is light on the scene, its light)
+        self.sub_s = 1.0 / geometry.projector_hz
+        self.latency = latency_ms / 1e3
+        # the exposure's light: in the first refresh of each frame (camera locked to the projector),
+        # or as run gives it on a free-running camera
+        self.exposing = strategy_entry(run.strategy).exposing and system is not None
+        lag = geometry.display_lag_s
+        # the light changes ``lag`` after each flip, so the refreshes of light are taken from then
+        # (from the flips, a lag that is not whole refreshes moved every light into the refresh after
+        # it: at 12 ms the light as run missed every exposure, dim holes came late)
+        self.phase = lag % self.sub_s
+        # the exposure's start after its frame's first refresh of light: triggered by it (the locked
+        # ideal), in its middle (run's lock), or the free-running camera's phase into it
+        self.offset = self.phase + (geometry.camera_phase * self.sub_s if geometry.camera_phase is not None else
+                                    (self.sub_s - geometry.exposure_s) / 2 if geometry.camera_lock else 0.0)
+        self.free: _FreeRunning | None = None
+        if self.exposing and geometry.camera_phase is not None:
+            self.free = _FreeRunning(self.sub_s, self.latency, lag=lag)
+        elif self.exposing and geometry.camera_lock:
+            self.free = _LockedRun(self.sub_s, self.latency, lag, 1.0 / geometry.camera_hz, geometry.exposure_s)
+        self.lifted = False
+        self.processed = 0
+        self.series: list[dict[str, float]] = []
+
+    def frame(self, k: int) -> None:
+        """Camera frame ``k``: each refresh's light on the particles and the background, the
+        exposure gathered and, once it ends, the system's step on it; one entry of ``series``."""
+        geometry, scene = self.geometry, self.scene
+        pw, ph = geometry.projector_size
+        t0 = k / geometry.camera_hz
+        te = t0 + self.offset
+        p = scene.particles()
+        u, v = geometry.to_projector(p["X"], p["Y"], p["Z"])
+        rp = np.maximum(geometry.projector_focal * p["R"] / p["Z"], 0.5)
+        cam_u, cam_v = geometry.to_camera(p["X"], p["Y"], p["Z"])
+        visible = (cam_u >= 0) & (cam_u < geometry.camera_size[0]) & (cam_v >= 0) & (cam_v < geometry.camera_size[1])
+        in_field = (u >= 0) & (u < pw) & (v >= 0) & (v < ph) & (p["Z"] > 0)
+        # only what the projector -- the vehicle's lamp -- can light counts
+        weight = backscatter_weight(scene, geometry, p) * visible * in_field
+        frame_on, frame_full, frame_scene = np.zeros(len(u)), np.zeros(len(u)), 0.0
+        exposure_on, exposure_bg = np.zeros(len(u)), 0.0  # the light the exposure gathers
+        sub_s, blurred = self.sub_s, bool(geometry.projector_aperture_m)
+        sub_per_frame = int(round(geometry.projector_hz / geometry.camera_hz))
+        for j in range(sub_per_frame):
+            ts = t0 + self.phase + j * sub_s
+            shown = self._light_at(ts, j)
+            # the scene's state is the frame's mid-exposure; particles keep moving through the
+            # frame period, so each refresh lights them where they are in its middle
+            q = scene.particles(ahead_s=self.phase + j * sub_s + sub_s / 2 - self.offset - geometry.exposure_s / 2)
+            su, sv = geometry.to_projector(q["X"], q["Y"], q["Z"])
+            blur = geometry.defocus_px(q["Z"]) if blurred else None
+            frame_on += _mean_over_discs(shown, su, sv, rp, blur)
+            frame_full += _mean_over_discs(self.full, su, sv, rp, blur)  # what the full lamp gives
+            bg = self.view.light(shown)  # the background plane: the share of the camera's view that is lit
+            frame_scene += float(bg[self.view.lit_area].sum()) / self.view.reference
+            if self.system is None:
+                continue
+            end = te + geometry.exposure_s
+            # the share of the exposure in this refresh
+            share = (1.0 if ts <= te and end <= ts + sub_s + 1e-12 else
+                     (min(end, ts + sub_s) - max(te, ts)) / geometry.exposure_s)
+            if share > 0:
+                exposure_on = exposure_on + share * _mean_over_discs(
+                    shown, u, v, rp, geometry.defocus_px(p["Z"]) if blurred else None)
+                exposure_bg = exposure_bg + share * bg
+            if not ts < end <= ts + sub_s + 1e-12 or (self.free is not None and not self.free.take(te, end)):
+                continue  # the exposure goes on, or run does not read this frame
+            self._step(te, end, exposure_on, exposure_bg)
+        frame_on /= sub_per_frame
+        frame_full /= sub_per_frame
+        total, lit = float((weight * frame_full).sum()), float((weight * frame_on).sum())
+        self.series.append({"frame": k, "removed": 1 - lit / total if total else float("nan"),
+                            "kept": frame_scene / sub_per_frame, "particle_light": lit, "particle_light_full": total})
+
+    def _light_at(self, ts: float, j: int) -> np.ndarray:
+        """The light of the refresh starting at ``ts`` (refresh ``j`` of its frame): the pattern on
+        then, or the exposure's light."""
+        while self.queue and self.queue[0][0] <= ts + 1e-12:
+            self.displayed = self.queue.pop(0)[1]
+            self.lifted = False  # a new pattern replaces the exposure's light
+        self.lifted = self.free.light_at(ts, self.lifted) if self.free is not None else self.exposing and j == 0
+        if self.system is None:
+            return self.full
+        return self.displayed.exposure if self.lifted else self.displayed.pattern
+
+    def _step(self, te: float, end: float, exposure_on: np.ndarray, exposure_bg: Any) -> None:
+        """The exposure ``te``..``end`` is read: the system's step on it, its pattern queued."""
+        geometry, system = self.geometry, self.system
+        self.processed += 1
+        # what the system takes the exposure to have been under: the light it made for it (the
+        # exposure's light, free-running whether or not it was on all through), or (run's locked
+        # loop starting its chain of lights after the pattern) the pattern
+        made = self.displayed.under_pattern if getattr(self.free, "under_pattern", False) else self.displayed.made
+        if made is not None:  # (run tells it nothing before its first pattern)
+            system.expose(made)
+        # the simulator's brightness is that of a 4 ms exposure: a shorter one gathers less
+        gather = geometry.exposure_s / REFERENCE_EXPOSURE_S
+        image = self.scene.render(light=(gather * exposure_on, gather * exposure_bg))
+        # the exposure's pattern goes on at a later refresh of this frame or the next
+        on_at = (self.free.processed(te, end) if self.free is not None else
+                 math.ceil((end + self.latency) / self.sub_s - 1e-9) * self.sub_s + geometry.display_lag_s)
+        step = system.render(system.analyse(image, te + geometry.exposure_s / 2, exposure_s=geometry.exposure_s,
+                                            on_s=on_at))
+        self.queue.append((on_at, _light_of(system, step)))
+        self.queue.sort(key=lambda item: item[0])
+
+
 def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), preset: str = "mixed",
                   frames: int = 90, seed: int = 1, latency_ms: float = 5.0, scene: Any = None,
                   calibration: Any = None, on_frame: Callable[[], Any] | None = None) -> dict[str, Any]:
     """Run one configuration in the loop; returns its figures (and per-frame series).
+
+    The system under test is :class:`~antiscatter.system.System`, the step ``run`` drives, built
+    for ``run`` as ``run`` builds its own; the twin keeps the world: particles, geometry, the light
+    of each refresh, the camera's exposures and run's loop timing.
 
     scene: a RealisticScene to use instead of the preset (its size must be ``geometry.camera_size``).
     calibration: a :class:`~antiscatter.calibration.Calibration` for the ``calibrated`` and
@@ -504,238 +674,22 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
     """
     if scene is None:
         scene = twin_scene(geometry, preset, seed)
-    detector = make_detector(run.detector) if run.detector else None
-    tracker = None
-    if run.strategy == "coast" or run.predict or run.mapping == "probe":
-        from .tracking import Tracker
-        # motion settings scale with the width; probing draws a new track's hole along its whole line,
-        # and the light its probes give a particle is not known until their verdict (as run)
-        probing = run.mapping == "probe"
-        tracker = Tracker(frame_size=geometry.camera_size, flow_holes=not probing,
-                          **({"flux_ratio": 0.0} if probing else {}))
-    # holes along epipolar segments: probed intervals, or the whole range when depth is unknown
-    segments = None
-    if run.mapping == "probe" or (run.mapping == "range" and geometry.baseline_m > 0):
-        segments = DepthProbe(calibration.mapping_at if calibration is not None else geometry.plane_mapping,
-                              near_m=geometry.near_m, far_m=geometry.far_m, dim_level=run.dim_level,
-                              projector_size=geometry.projector_size, min_worth=run.min_worth)
-    probe = segments if run.mapping == "probe" else None
-    rest = rest_for(run.strategy) if run.rest is None else run.rest
-    levels = (HoleLevels(run.dim_level, rest=rest if probe is None else 0)  # probing reads no rest
-              if run.levels == "adaptive" and run.strategy in ("dim", "pulse") and tracker is not None else None)
-    shown_probes: Mapping = {}  # the intervals the pattern on during the last exposure gave each track
-    shown_ids = None  # the tracks whose holes were on during the last exposure
-    shown_rested = None  # of them, those left dark through it (HoleLevels.rest)
-    pw, ph = geometry.projector_size
-    if run.mapping == "identity":
-        camera_mapping = scale_mapping(geometry.camera_size, geometry.projector_size)
-    elif calibration is not None:
-        camera_mapping = calibration.homography
-    else:
-        camera_mapping = geometry.plane_mapping(geometry.working_depth_m)
-    # where the system believes its light lands behind the particles: the far working distance
-    far_mapping = (camera_mapping if run.mapping == "identity" else
-                   calibration.mapping_at(geometry.far_m) if calibration is not None else
-                   geometry.plane_mapping(geometry.far_m))
-    camera_from_far = np.linalg.inv(far_mapping)
-    sub_per_frame = int(round(geometry.projector_hz / geometry.camera_hz))
-    sub_s = 1.0 / geometry.projector_hz
-    frame_s = 1.0 / geometry.camera_hz
-    latency = latency_ms / 1e3
-    full = np.ones((ph, pw), np.float32)
-    flash = np.full((ph, pw), run.flash_level, np.float32)
-    displayed = full  # the lamp is fully on until the first pattern is ready
-    queue: list[tuple[float, np.ndarray]] = []  # (time the pattern goes on, pattern)
-    buffer = np.empty((ph, pw), np.uint8)
-    drawn = {"size": geometry.projector_size, "mapping": camera_mapping, "buffer": buffer, "segments": segments,
-             "levels": levels, "frame_width": geometry.camera_size[0]}
-    background_map = geometry.plane_mapping(geometry.background_m)
-    inverse_bg = np.linalg.inv(background_map)
-    lit_area = cv2.warpPerspective(full, inverse_bg, geometry.camera_size, flags=cv2.INTER_NEAREST,
-                                   borderMode=cv2.BORDER_CONSTANT, borderValue=0.0) > 0.5
-    lit_pixels = int(lit_area.sum())
-    # the pattern's defocus on the background, in camera pixels (a normalised disc; None: sharp)
-    background_blur = _disc_kernel(float(geometry.defocus_px(geometry.background_m))
-                                   * geometry.camera_focal / geometry.projector_focal)
-    # the full lamp's light on that view: the reference of the scene light kept (the view's size,
-    # less what a blurred edge of the field spills outside it)
-    lit_reference = float(lit_pixels if background_blur is None else
-                          cv2.filter2D(lit_area.astype(np.float32), -1, background_blur,
-                                       borderType=cv2.BORDER_CONSTANT)[lit_area].sum())
-    if lit_pixels == 0:  # every figure would be 0 / 0
-        raise UsageError(f"baseline {geometry.baseline_m:g} m: the projector lights none of the camera's view of "
-                         f"the background {geometry.background_m:g} m away; allowed: a geometry whose views "
-                         "overlap (a smaller --baseline-m)")
-    on_particles = off_particles = 0.0
-    on_scene = 0.0
-    scene_samples = 0
-    series = []
-    exposure_pattern = None  # the pattern on during the last exposure (projector pixels, 1 = full)
-
-    def _process(image: np.ndarray, t0: float, on_at: float) -> tuple[float, Any]:
-        """The system under test on the exposure that began at ``t0``, its pattern going on at
-        ``on_at``: (on_at, pattern or prediction)."""
-        found = detector.detect(image)
-        if tracker is not None:
-            tracks = tracker.update(found, t0 + geometry.exposure_s / 2, unlit=shown_ids)
-            if probe is not None:
-                seen = Detections(found.centres, found.radii, found.scores, tracks.detection_ids)
-                coasting = tracks.confirmed & (tracks.misses > 0)
-                probe.observe(seen, shown_probes, tracks.ids[coasting],
-                              exposure=exposure_pattern, coasting_centres=tracks.centres[coasting])
-                probe.forget(tracks.ids)
-            if levels is not None:  # how bright each came back under its own hole (or probe: its verdict)
-                levels.update(found, tracks.detection_ids, shown_ids if probe is None else probe.dimmed,
-                              tracks.ids, tracks.ids[tracks.confirmed], rested=shown_rested)
-            # as run: one pattern a frame, on until the next; predicted, its holes are where the
-            # particles will be halfway through that time (``PREDICT_AHEAD``)
-            at = on_at + PREDICT_AHEAD * frame_s if run.predict else t0 + geometry.exposure_s / 2
-            # pulse, as run: what the first exposure under this pattern is taken under is drawn for
-            # its time -- the probes' halves for its start, the lifted pattern for the middle of its
-            # refresh (a pattern ready after the next exposure began waits for the one after)
-            exposure_at = at
-            if run.predict and run.strategy == "pulse":
-                exposure_at = (math.ceil((on_at - offset) / frame_s - 1e-9) * frame_s + offset
-                               + (0.0 if probe is not None else sub_s / 2))
-            if probe is not None:
-                snapshot = tracker.snapshot()
-                probes, covers = probe.plan(snapshot.holes(at))
-                return on_at, _Probing(snapshot, probes, covers if run.strategy == "pulse" else probes, at,
-                                       exposure_at, copy.copy(levels))  # (an update replaces its arrays)
-            holes = tracker.holes(at)
-            return on_at, _Fixed(_holes_pattern(holes, run, **drawn), holes.track_ids,
-                                 holes if exposure_at == at else tracker.holes(exposure_at))
-        return on_at, _holes_pattern(found, run, **drawn)
-
-    def _shown(displayed: Any, lifted: bool) -> np.ndarray:
-        """The light of a refresh: the pattern ``displayed``, or (``lifted``) the exposure's light
-        -- the flash, or the pattern with its holes lifted (pulse)."""
-        if detector is None:
-            return full
-        if run.strategy == "flash" and lifted:
-            return flash  # the detection flash, timed to the exposure
-        pulsed = lifted and run.strategy == "pulse"
-        if isinstance(displayed, _Probing):
-            # pulse: only the exposure's refresh needs the probe's half; the others keep the
-            # whole interval that may hold the particle dark
-            return _holes_pattern(displayed.prediction.holes(displayed.exposure_at if pulsed else displayed.at),
-                                  run, lifted=pulsed, probes=displayed.probes if lifted else displayed.between,
-                                  grow=not lifted and displayed.between is not displayed.probes,
-                                  **{**drawn, "levels": displayed.levels})
-        if isinstance(displayed, _Fixed):
-            return _holes_pattern(displayed.holes, run, lifted=True, **drawn) if pulsed else displayed.light
-        return np.maximum(displayed, run.dim_level) if pulsed else displayed  # holes dimmed while the camera exposes
-
-    # the exposure's light: in the first refresh of each frame (camera locked to the projector),
-    # or as run gives it on a free-running camera
-    exposing = run.strategy in ("pulse", "flash") and detector is not None
-    lag = geometry.display_lag_s
-    # the light changes ``lag`` after each flip, so the refreshes of light are taken from then
-    # (from the flips, a lag that is not whole refreshes moved every light into the refresh after
-    # it: at 12 ms the light as run missed every exposure, dim holes came late)
-    phase = lag % sub_s
-    # the exposure's start after its frame's first refresh of light: triggered by it (the locked
-    # ideal), in its middle (run's lock), or the free-running camera's phase into it
-    offset = phase + (geometry.camera_phase * sub_s if geometry.camera_phase is not None else
-                      (sub_s - geometry.exposure_s) / 2 if geometry.camera_lock else 0.0)
-    free = None
-    if exposing and geometry.camera_phase is not None:
-        free = _FreeRunning(sub_s, latency, lag=lag)
-    elif exposing and geometry.camera_lock:
-        free = _LockedRun(sub_s, latency, lag, frame_s, geometry.exposure_s)
-    lifted = False
-    processed = 0
+    system = _twin_system(run, geometry, calibration)
+    loop = _Loop(run, geometry, scene, system, latency_ms)
     for k in range(frames):
         if on_frame is not None:
             on_frame()
         if k:
             scene.step()
-        t0 = k / geometry.camera_hz
-        te = t0 + offset
-        p = scene.particles()
-        u, v = geometry.to_projector(p["X"], p["Y"], p["Z"])
-        rp = geometry.projector_focal * p["R"] / p["Z"]
-        cam_u, cam_v = geometry.to_camera(p["X"], p["Y"], p["Z"])
-        visible = (cam_u >= 0) & (cam_u < geometry.camera_size[0]) & (cam_v >= 0) & (cam_v < geometry.camera_size[1])
-        in_field = (u >= 0) & (u < pw) & (v >= 0) & (v < ph) & (p["Z"] > 0)
-        # only what the projector -- the vehicle's lamp -- can light counts
-        weight = backscatter_weight(scene, geometry, p) * visible * in_field
-        frame_on = np.zeros(len(u))
-        frame_full = np.zeros(len(u))
-        frame_scene = 0.0
-        exposure_on, exposure_bg = np.zeros(len(u)), 0.0  # the light the exposure gathers
-        for j in range(sub_per_frame):
-            ts = t0 + phase + j * sub_s
-            while queue and queue[0][0] <= ts + 1e-12:
-                displayed = queue.pop(0)[1]
-                lifted = False  # a new pattern replaces the exposure's light
-            lifted = free.light_at(ts, lifted) if free is not None else exposing and j == 0
-            shown = _shown(displayed, lifted)
-            # the scene's state is the frame's mid-exposure; particles keep moving through the
-            # frame period, so each refresh lights them where they are in its middle
-            q = scene.particles(ahead_s=phase + j * sub_s + sub_s / 2 - offset - geometry.exposure_s / 2)
-            su, sv = geometry.to_projector(q["X"], q["Y"], q["Z"])
-            blur = geometry.defocus_px(q["Z"]) if geometry.projector_aperture_m else None
-            particle_light = _mean_over_discs(shown, su, sv, np.maximum(rp, 0.5), blur)
-            frame_on += particle_light
-            frame_full += _mean_over_discs(full, su, sv, np.maximum(rp, 0.5), blur)  # what the full lamp gives
-            # the background plane: the share of the camera's view that is lit
-            bg = cv2.warpPerspective(shown, inverse_bg, geometry.camera_size, flags=cv2.INTER_NEAREST,
-                                     borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
-            if background_blur is not None:  # the projector focused nearer or farther than the background
-                bg = cv2.filter2D(bg, -1, background_blur, borderType=cv2.BORDER_CONSTANT)
-            frame_scene += float(bg[lit_area].sum()) / lit_reference
-            if detector is None:
-                continue
-            end = te + geometry.exposure_s
-            # the share of the exposure in this refresh
-            share = (1.0 if ts <= te and end <= ts + sub_s + 1e-12 else
-                     (min(end, ts + sub_s) - max(te, ts)) / geometry.exposure_s)
-            if share > 0:
-                exposure_on = exposure_on + share * _mean_over_discs(
-                    shown, u, v, np.maximum(rp, 0.5), geometry.defocus_px(p["Z"]) if blur is not None else None)
-                exposure_bg = exposure_bg + share * bg
-            if not ts < end <= ts + sub_s + 1e-12 or (free is not None and not free.take(te, end)):
-                continue  # the exposure goes on, or run does not read this frame
-            # the exposure's pattern goes on at a later refresh of this frame or the next
-            processed += 1
-            # what the system believes the exposure was taken under (free-running, with the
-            # exposure's light: that light, whether or not it was on all through)
-            # (run's locked loop starting its chain of lights after the pattern: under the pattern)
-            under_pattern = getattr(free, "under_pattern", False)
-            believed = shown if lifted or not exposing or under_pattern else _shown(displayed, True)
-            exposure_pattern = believed  # what the probe's verdicts are judged against
-            shown_probes = displayed.probes if isinstance(displayed, _Probing) and not under_pattern else {}
-            # the tracks whose holes this exposure is taken under (none under a flash)
-            shown_ids = (None if run.strategy == "flash" else
-                         Intervals.of(displayed.probes).ids if isinstance(displayed, _Probing) else
-                         displayed.ids if isinstance(displayed, _Fixed) else None)
-            shown_rested = (shown_ids if under_pattern else  # (between exposures every hole is dark)
-                            levels.rested(shown_ids) if levels is not None and shown_ids is not None else None)
-            # the simulator's brightness is that of a 4 ms exposure: a shorter one gathers less
-            gather = geometry.exposure_s / REFERENCE_EXPOSURE_S
-            exposure_light = (gather * exposure_on, gather * exposure_bg)
-            # the system knows the light it put on the scene during this exposure: its
-            # pattern, taken back to camera pixels on a plane at the far working distance
-            if run.mapping != "identity":  # as run: no compensation without a calibration
-                detector.set_light(camera_light(believed, camera_from_far, geometry.camera_size))
-            if tracker is not None and run.strategy != "flash" and run.mapping != "identity":
-                # as run (with compensation): where tracked particles should be now
-                detector.expect(tracker.snapshot().holes(te + geometry.exposure_s / 2))
-            on_at = (free.processed(te, end) if free is not None else
-                     math.ceil((end + latency) / sub_s - 1e-9) * sub_s + lag)
-            queue.append(_process(scene.render(light=exposure_light), te, on_at))
-            queue.sort(key=lambda item: item[0])
-        frame_on /= sub_per_frame
-        frame_scene /= sub_per_frame
-        frame_full /= sub_per_frame
-        on_particles += float((weight * frame_on).sum())
-        off_particles += float((weight * frame_full).sum())
-        on_scene += frame_scene
-        scene_samples += 1
-        total, lit = float((weight * frame_full).sum()), float((weight * frame_on).sum())
-        series.append({"frame": k, "removed": 1 - lit / total if total else float("nan"), "kept": frame_scene,
-                       "particle_light": lit, "particle_light_full": total})
+        loop.frame(k)
+    return _figures(run, geometry, loop, frames, latency_ms)
+
+
+def _figures(run: TwinRun, geometry: TwinGeometry, loop: _Loop, frames: int, latency_ms: float) -> dict[str, Any]:
+    """The loop's figures over the whole run and from ``steady_from`` on, and its settings."""
+    series = loop.series
+    on_particles = sum(f["particle_light"] for f in series)
+    off_particles = sum(f["particle_light_full"] for f in series)
     removed = 1.0 - on_particles / off_particles if off_particles else 0.0
     # after the start-up: the detector's background warm-up and the first tracks' confirmation
     settle = steady_from(frames)
@@ -743,11 +697,14 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
     steady_full = sum(f["particle_light_full"] for f in steady)
     removed_steady = 1.0 - sum(f["particle_light"] for f in steady) / steady_full if steady_full else 0.0
     kept_steady = float(np.mean([f["kept"] for f in steady])) if steady else 1.0
+    levels = loop.system.levels if loop.system is not None else None
+    probe = loop.system.probe if loop.system is not None else None
     return {"detector": "default" if run.detector == "contrast" else run.detector,
             "calibrated": run.detector is not None and run.mapping != "identity",
             "mapping": run.mapping if run.detector else "none", "predict": run.predict,
             "strategy": run.strategy if run.detector else "none", "dim_level": run.dim_level,
-            "levels": ("adaptive" if levels is not None else "fixed") if run.strategy in ("dim", "pulse") else None,
+            "levels": ("adaptive" if levels is not None else "fixed") if strategy_entry(run.strategy).visible
+            else None,
             "rest": levels.rest if levels is not None else None,
             "grow": run.grow if run.detector else None,
             "grow_from": run.grow_from if run.detector and run.grow else None,
@@ -755,9 +712,9 @@ def simulate_loop(run: TwinRun, *, geometry: TwinGeometry = TwinGeometry(), pres
             "latency_ms": latency_ms, "display_lag_ms": geometry.display_lag_s * 1e3,
             "camera": "free" if geometry.camera_phase is not None else "locked, as run" if geometry.camera_lock
             else "locked",
-            "camera_phase": geometry.camera_phase, "frames_processed": processed if run.detector else 0,
+            "camera_phase": geometry.camera_phase, "frames_processed": loop.processed if run.detector else 0,
             "baseline_m": geometry.baseline_m, "backscatter_removed": removed,
-            "scene_light_kept": on_scene / scene_samples if scene_samples else 1.0, "frames": frames,
+            "scene_light_kept": float(np.mean([f["kept"] for f in series])) if series else 1.0, "frames": frames,
             "steady_from_frame": settle, "backscatter_removed_steady": removed_steady,
             "scene_light_kept_steady": kept_steady, "series": series}
 

@@ -233,6 +233,7 @@ def test_the_camera_locked_to_the_projector_takes_its_exposures_under_the_lifted
 
     import antiscatter.outputs.kms as kms_module
     import antiscatter.runtime as runtime
+    import antiscatter.system as system
     from antiscatter.config import load_config
     from antiscatter.runtime import run
     from antiscatter.sources.base import Frame, FrameSource
@@ -260,9 +261,9 @@ def test_the_camera_locked_to_the_projector_takes_its_exposures_under_the_lifted
         told[-1] = cv2.resize(light, (320, 200), interpolation=cv2.INTER_NEAREST)
         return camera_light(light, *args, **kwargs)
 
-    camera_light = runtime.camera_light
+    camera_light = system.camera_light
     monkeypatch.setattr(runtime._Pipeline, "process", processed_in_virtual_time)
-    monkeypatch.setattr(runtime, "camera_light", light_told)
+    monkeypatch.setattr(system, "camera_light", light_told)
 
     class VirtualCamera(FrameSource):
         live, size, shortest_frame_ns = True, (160, 120), 16_560_000

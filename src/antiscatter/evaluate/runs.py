@@ -257,11 +257,11 @@ def evaluate_tracking(frames_iter, detector: Detector, m: Matching, *, fps: floa
     at +1, +2, +3 frames}.
     """
     from ..assignment import gates as _gates, match as _match
-    from ..tracking import Tracker
+    from ..system import make_tracker
     from .tracking import PredictionError, TrackingScore, isolated
 
     detector.reset()
-    tracker = Tracker()
+    tracker = make_tracker()
     score = TrackingScore(min_gate=m.min_gate, gate_scale=m.gate_scale)
     alone = TrackingScore(min_gate=m.min_gate, gate_scale=m.gate_scale)  # particles that overlap none
     prediction = PredictionError()
