@@ -263,7 +263,8 @@ def _open_source(config: Config, detector: Detector) -> FrameSource:
 def _make_system(config: Config, detector: Detector, tracker: Any, camera_size: tuple[int, int], calibration: Any,
                  *, buffers: int, defer: bool) -> System:
     """The run's :class:`~antiscatter.system.System`: its mapping (the configured matrix, else the
-    calibration's, else the camera scaled to the projector), levels and depth probe from ``config``."""
+    calibration's, else the camera scaled to the projector), the light map's mapping (a calibration
+    with a baseline: its plane at ``light.far_m``), levels and depth probe from ``config``."""
     light, pattern = config.light, config.pattern
     projector_size = (pattern.width, pattern.height)
     mapping = pattern.matrix()
@@ -292,8 +293,13 @@ def _make_system(config: Config, detector: Detector, tracker: Any, camera_size: 
                             grow=pattern.grow, grow_from=pattern.grow_from, margin=pattern.margin,
                             compensate=bool(light.compensate) and strategy.exposure != "flash"
                             and config.run.mode == "single")
+    # the light the detector is told of lands on the background, taken to be at the far working
+    # distance: a calibration with a baseline gives that plane's mapping (the working plane's is
+    # off by the parallax there; docs/decisions/011-one-system.md)
+    far = (calibration.mapping_at(light.far_m) if pattern.matrix() is None and calibration is not None
+           and calibration.baseline_m is not None else None)
     return System(detector, tracker, mapping=mapping, camera_size=camera_size, projector_size=projector_size,
-                  settings=settings, levels=levels, probe=probe, defer=defer, buffers=buffers)
+                  settings=settings, levels=levels, probe=probe, defer=defer, buffers=buffers, light_mapping=far)
 
 
 #: frames per second of a folder of images, which has no clock of its own, when the run is not
