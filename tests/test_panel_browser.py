@@ -63,6 +63,28 @@ def test_panel_in_a_real_browser(tmp_path, browser):
         time.sleep(1.0)
         browser.find_element(By.ID, "record").click()
         wait.until(lambda d: d.find_element(By.ID, "status").text == "recording stopped")
+        # what runs, at the top
+        assert browser.find_element(By.ID, "info-source").text == "sim"
+        assert browser.find_element(By.ID, "info-detector").text == "contrast"
+        assert browser.find_element(By.ID, "info-frame").text == "800 x 600 px"
+        # a control: a value out of range is refused with its message on the page, one in range applies
+        field = wait.until(lambda d: d.find_element(By.ID, "control-sensitivity"))
+        field.clear()
+        field.send_keys("99")
+        browser.find_element(By.ID, "set-sensitivity").click()
+        wait.until(lambda d: d.find_element(By.ID, "status").text == "detector k: got '99', allowed 2 to 14")
+        assert browser.find_element(By.ID, "status").get_attribute("class") == "error"
+        field.clear()
+        field.send_keys("6")
+        browser.find_element(By.ID, "set-sensitivity").click()
+        wait.until(lambda d: d.find_element(By.ID, "status").text.startswith("contrast k 6 from the next frame"))
+        assert browser.find_element(By.ID, "status").get_attribute("class") == ""
+        frames = int(stat(browser, "frames"))
+        wait.until(lambda d: int(stat(d, "frames") or 0) > frames + 5)  # the run goes on with it
+        # the chart is drawn: pixels on the canvas
+        assert browser.execute_script(
+            "const c = document.getElementById('chart'); const d = c.getContext('2d').getImageData(0, 0, c.width, "
+            "c.height).data; for (let i = 3; i < d.length; i += 4) if (d[i]) return true; return false;")
         # Stop ends the run
         browser.find_element(By.ID, "stop").click()
         out, err = proc.communicate(timeout=30)

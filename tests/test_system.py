@@ -118,3 +118,37 @@ def test_the_measured_latency_is_a_running_mean():
     assert system.timing.latency == pytest.approx(0.010)
     system.observe_latency(0.020)
     assert system.timing.latency == pytest.approx(0.011)
+
+
+def test_a_changed_level_or_detector_applies_from_the_next_frame_only():
+    found = Detections(np.array([[50.0, 40.0]]), np.array([6.0]))
+    frame = np.zeros((100, 200), np.uint8)
+    for strategy, lifted in (("dim", False), ("pulse", True)):
+        system = _system(strategy=strategy, dim_level=0.2, grow=0.0)
+        assert system.level == pytest.approx(51 / 255)
+        step = system.analyse(frame, 0.0, found=found, stage_ns=[])
+        system.change(level=0.5)  # while a frame is under way: that frame keeps its level
+        step = system.render(step)
+        shown = system.lift(step, step.pattern) if lifted else step.pattern
+        assert shown[40, 50] == 51
+        step = system.render(system.analyse(frame, 0.02, found=found, stage_ns=[]))
+        shown = system.lift(step, step.pattern) if lifted else step.pattern
+        assert shown[40, 50] == 128 and system.level == pytest.approx(128 / 255)
+    assert _system(strategy="none").level is None  # dark holes: no level to change
+    system = _system()
+    old, new = system.detector, make_detector("contrast")
+    system.change(detector=new)
+    assert system.detector is old
+    step = system.analyse(frame, 0.0)
+    assert system.detector is new and step.detector is new  # its deferred stages are the new one's
+
+
+def test_a_changed_ceiling_holds_every_tracks_level_under_it():
+    from antiscatter.levels import HoleLevels
+
+    levels = HoleLevels(0.5, floor=0.05)
+    levels.ids, levels.level, levels.least = np.array([1, 2]), np.array([0.5, 0.1]), np.array([0.2, 0.0])
+    levels.set_ceiling(0.15)
+    assert levels.ceiling == 0.15 and levels.level.tolist() == [0.15, 0.1] and levels.least.tolist() == [0.15, 0.0]
+    levels.set_ceiling(0.0)  # never under the floor
+    assert levels.ceiling == 0.05

@@ -176,6 +176,13 @@ class HoleLevels:
         ids = np.asarray(hole_ids, np.int64)
         return ids[self._resting(ids)]
 
+    def set_ceiling(self, ceiling: float) -> None:
+        """The most a hole gives from now on (0..1 of full light, at least ``floor``); every
+        track's level is held under it."""
+        self.ceiling = min(max(float(ceiling), self.floor), 1.0)
+        np.minimum(self.level, self.ceiling, out=self.level)
+        np.minimum(self.least, self.ceiling, out=self.least)
+
     def grey(self, track_ids: np.ndarray) -> np.ndarray:
         """:meth:`of` as the projector's grey levels, 0..255."""
         return np.rint(self.of(track_ids) * 255.0).astype(np.uint8)

@@ -414,7 +414,7 @@ class _Pipeline:
         if rec.learned is None or rec.learned.is_set():
             return
         try:
-            finish_stages(self.detector, rec.detections, rec.stage_ns, clock=self.clock)
+            finish_stages(rec.detector or self.detector, rec.detections, rec.stage_ns, clock=self.clock)
         finally:
             rec.learned.set()
 
@@ -822,9 +822,47 @@ def _serve_panel(panel: Any, pipeline: _Pipeline, stop: "StopFlag", log: TextIO)
                        "rate": f"{rate:g} frames/s" if rate else "the camera's",
                        "mode": config.run.mode})
     panel.actions.update(light=light, record=record, stop=finish)
+    panel.controls.update(_panel_controls(pipeline))
     panel.start()
     print(f"control panel: {panel.url}", file=log)
     return panel
+
+
+def _panel_controls(pipeline: _Pipeline) -> dict[str, Any]:
+    """The settings the panel offers, applied at the next frame (:meth:`System.change`): the
+    strategy's hole level where it has one, and the detector's sensitivity (its ``sweep``
+    parameter, over the sweep's range) unless the detector runs in worker processes."""
+    from .detection import DETECTORS, with_sensitivity
+    from .web import Control
+
+    system, config = pipeline.system, pipeline.config
+    controls: dict[str, Any] = {}
+    if system.level is not None:
+        low = system.levels.floor if system.levels is not None else 0.0
+
+        def set_level(value: float) -> str:
+            system.change(level=value)
+            return f"hole level {value:g} from the next frame"
+
+        controls["level"] = Control("hole level", "of full light", low, 1.0, 0.01, lambda: system.level, set_level)
+    name = config.detector.name
+    key, values = DETECTORS[name].sweep
+    if key and not config.run.mode.startswith("processes"):
+        params = [config.detector_params if config.detector_params is not None else DETECTORS[name].params()]
+
+        def set_sensitivity(value: float) -> str:
+            try:
+                changed = with_sensitivity(name, params[0], value)
+            except ValueError as exc:
+                return f"{key}: {exc}"
+            system.change(detector=make_detector(name, changed, threads=config.run.threads))
+            params[0] = changed
+            return f"{name} {key} {getattr(changed, key):g} from the next frame (its background learnt afresh)"
+
+        controls["sensitivity"] = Control(f"detector {key}", "", float(min(values)), float(max(values)),
+                                          0.5 if isinstance(getattr(params[0], key), float) else 1.0,
+                                          lambda: getattr(params[0], key), set_sensitivity)
+    return controls
 
 
 def claim_recording_path(base: Path, *, limit: int = 10000) -> Path:

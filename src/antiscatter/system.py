@@ -139,6 +139,7 @@ class Step:
     exposure_holes: Any = None  # pulse with prediction: its holes (Detections), for the time it is on
     rested_ids: Any = None  # the track ids of this pattern's holes left fully dark (HoleLevels.rest)
     learned: threading.Event | None = None  # the detector's deferred stages are done (None: none pending)
+    detector: Detector | None = None  # the detector that made it (its deferred stages are that one's)
 
 
 class _Timing:
@@ -213,6 +214,40 @@ class System:
         self.clock = clock
         self.under = Exposure(None)  # the light the next exposure is taken under
         self.timing = _Timing()
+        self._changes: dict[str, Any] = {}  # settings changed while running, for the next analyse
+        self._changes_lock = threading.Lock()
+
+    @property
+    def level(self) -> float | None:
+        """The strategy's hole level, 0..1 of full light (the most a hole gives with adaptive levels);
+        None where the strategy has none (its holes dark, the exposure not lifted)."""
+        if self.strategy.hole != "dim" and self.pulse_level is None:
+            return None
+        return self.levels.ceiling if self.levels is not None else (self.pulse_level or self.hole_level) / 255
+
+    def change(self, *, level: float | None = None, detector: Detector | None = None) -> None:
+        """Settings changed while the system runs (from another thread), applied as the next
+        :meth:`analyse` begins: ``level`` the hole level (0..1 of full light; see :attr:`level`),
+        ``detector`` a new detector in place of this one (it learns its background afresh)."""
+        with self._changes_lock:
+            if level is not None:
+                self._changes["level"] = level
+            if detector is not None:
+                self._changes["detector"] = detector
+
+    def _apply_changes(self) -> None:
+        with self._changes_lock:
+            changes, self._changes = self._changes, {}
+        if "detector" in changes:
+            self.detector = changes["detector"]
+        if "level" in changes and self.level is not None:
+            grey = round(changes["level"] * 255)
+            if self.strategy.hole == "dim":
+                self.hole_level = grey
+            if self.pulse_level is not None:
+                self.pulse_level = grey
+            if self.levels is not None:
+                self.levels.set_ceiling(changes["level"])
 
     def analyse(self, image: np.ndarray, captured_s: float, *, exposure_s: float = 0.0, on_s: float | None = None,
                 found: Detections | None = None, stage_ns: list[int] | None = None,
@@ -224,6 +259,8 @@ class System:
         time; on_s: when this step's pattern will be light on the scene, if the driver knows
         (else the latency setting or the measured one says).
         """
+        if self._changes:
+            self._apply_changes()
         learned = None
         if found is None:
             detections, stage_ns = time_stages(self.detector, image, clock=self.clock, defer=self.defer)
@@ -232,7 +269,7 @@ class System:
         else:
             detections = found
         step = Step(frame, t0, t1, detections, stage_ns or [], 0, None, detections, t1 + sum(stage_ns or []), 0,
-                    learned=learned)
+                    learned=learned, detector=self.detector)
         if self.tracker is not None:
             t_track = self.clock()
             self._track(step, captured_s, exposure_s, on_s)

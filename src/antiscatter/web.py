@@ -166,7 +166,7 @@ async function controls() {{
   document.getElementById('controls').innerHTML = list.map(c =>
     '<label for="control-' + c.name + '">' + c.label + (c.unit ? ' (' + c.unit + ')' : '') + '</label>' +
     '<input id="control-' + c.name + '" type="number" step="' + c.step + '" value="' + c.value + '">' +
-    '<button id="set-' + c.name + '" onclick="setControl(\'' + c.name + '\')">Set</button> ').join('');
+    '<button id="set-' + c.name + '" data-name="' + c.name + '" onclick="setControl(this.dataset.name)">Set</button> ').join('');
 }}
 function nice(top) {{  // an axis maximum of 1, 2 or 5 times a power of ten
   const p = Math.pow(10, Math.floor(Math.log10(Math.max(top, 1e-9))));
