@@ -80,6 +80,7 @@ def build_contrast(params: ContrastParams, *, threads: int = 1) -> Detector:
     measured on in bands of labels beside the coarse scale (:class:`~.bands.BandPool`; default 1);
     the detections and what the model learns are the same on any number."""
     pool = BandPool(threads)
+    serial = BandPool(1)
     model = BackgroundModel(cell=params.cell, memory=params.memory, k=params.k, min_contrast=params.min_contrast,
                             follow=params.follow, defer_looks=True, pool=pool if threads > 1 else None)
     state = ChainState()
@@ -177,7 +178,7 @@ def build_contrast(params: ContrastParams, *, threads: int = 1) -> Detector:
             seen = None
 
         def fine() -> Detections:  # in bands of components with threads > 1 (measure itself with one)
-            return measure_in_bands(components, excess, model.noise, pool, halo=params.halo, core=params.core,
+            return measure_in_bands(components, excess, model.noise, serial, halo=params.halo, core=params.core,
                                     max_radius=params.max_radius, split=params.split, frame_width=state.width,
                                     factor=state.factor, lone_k=params.lone_k, seen=seen,
                                     full=None if state.grey is None else (state.grey, state.base), fine=state.frozen is None,
@@ -192,7 +193,7 @@ def build_contrast(params: ContrastParams, *, threads: int = 1) -> Detector:
                                         min_contrast=params.min_contrast, core=params.core, halo=params.halo,
                                         max_radius=params.max_radius)
 
-            found = merge_scales(*pool.call(fine, coarse))  # the two scales at once with threads > 1
+            found = merge_scales(fine(), coarse())
         else:
             found = fine()
         state.learn = (reflectance, mask, state.frozen)
