@@ -75,6 +75,8 @@ LONG_COMMANDS = {
     "bench": lambda tmp, sim: ["bench", "--frames", "5", "--detectors", "seed", "--sizes", "96x64", "--distinct", "2"],
     "bench SOURCE": lambda tmp, sim: ["bench", str(sim), "--frames", "5", "--detectors", "seed", "--distinct", "2"],
     "twin": lambda tmp, sim: ["twin", "--frames", "2", "--size", "96x64", "--baseline-m", "0"],
+    "run": lambda tmp, sim: ["run", str(sim / "frames") if (sim / "frames").is_dir() else str(sim), "--output",
+                             "none", "--frames", "6"],
     "calibrate": lambda tmp, sim: ["calibrate", "--twin", str(tmp / "c.json"), "--size", "160x120",
                                    "--projector-size", "320x200", "--depths", "1"],
 }

@@ -378,6 +378,7 @@ class _Pipeline:
         self.row = [0.0] * len(columns)
         self.clock = time.perf_counter_ns
         self.panel: Any = None
+        self.bar: Any = None  # the progress bar on a terminal (console.progress), advanced a frame at a time
         self.mcap: Any = None  # the MCAP log (--mcap), set by run
         self.light_on = True
         self.record_wanted = False
@@ -549,6 +550,8 @@ class _Pipeline:
             summary.durations[column].add(v)
         summary.particles.add(len(rec.detections))
         summary.frames += 1
+        if self.bar is not None:
+            self.bar.update()
         if rec.detections.cut:
             summary.cut += rec.detections.cut
             summary.cut_frames += 1
@@ -767,6 +770,10 @@ def run(config: Config, *, log: TextIO | None = None, out: TextIO | None = None,
 
             pipeline.mcap = stack.enter_context(McapLog(rc.mcap))
         stack.callback(pipeline.stop_recording, wait=True)  # a recording is finished however the run ends
+        if rc.frames or not getattr(source, "live", False):  # a run with an end: its progress on a terminal
+            from .console import progress
+
+            pipeline.bar = stack.enter_context(progress(total=rc.frames or None, desc="run"))
         if panel is not None:
             pipeline.panel = _serve_panel(panel, pipeline, stop, log)
         started = time.perf_counter_ns()
