@@ -400,3 +400,13 @@ def test_run_page_names_every_report_column_the_default_detector_leaves_at_zero(
     assert f"default `{DEFAULT_DETECTOR}`" in section and "these seven are always 0" in section
     for column in zero:
         assert f"`{column.replace(' Duration (s)', '')}`" in section, column
+
+
+def test_the_interval_error_is_given_only_against_an_asked_rate(tmp_path):
+    code, out, err = _command(["run", "--size", "96x64", "--output", "none", "--frames", "8"], tmp_path, tty=False)
+    assert code == 0, err
+    assert "interval error" not in out and "output rate" in out and "(unpaced: --fps sets a rate)" in out
+    code, out, err = _command(["run", "--size", "96x64", "--output", "none", "--frames", "8", "--fps", "50"],
+                              tmp_path, tty=False)
+    assert code == 0, err
+    assert "interval error against the --fps period: p50" in out

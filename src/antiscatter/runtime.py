@@ -1358,9 +1358,12 @@ def _print_summary(summary: RunSummary, out: TextIO, config: Config | None = Non
         outcome = f"failed ({entry['error']})" if "error" in entry else f"{entry.get('frames', 0)} frames"
         print(f"panel recording {entry['path']}: {outcome}", file=out)
     pacing = summary.pacing()
-    if pacing:
-        print(f"output rate {pacing['rate']:.2f} frames/s; interval error p50 {pacing['jitter_p50_ms']:.3f} ms, "
-              f"p99 {pacing['jitter_p99_ms']:.3f} ms, max {pacing['jitter_max_ms']:.3f} ms", file=out)
+    if pacing and summary.period_ns:  # paced (--fps): how closely the frames kept its period
+        print(f"output rate {pacing['rate']:.2f} frames/s; interval error against the --fps period: p50 "
+              f"{pacing['jitter_p50_ms']:.3f} ms, p99 {pacing['jitter_p99_ms']:.3f} ms, max "
+              f"{pacing['jitter_max_ms']:.3f} ms", file=out)
+    elif pacing:
+        print(f"output rate {pacing['rate']:.2f} frames/s (unpaced: --fps sets a rate)", file=out)
     if config is not None:
         files = written_files(config)
         print("files written: " + (", ".join(f"{path} ({what})" for path, what in files) if files else
