@@ -261,3 +261,28 @@ def test_simulate_removes_stale_staging_but_not_a_running_ones(tmp_path):
     simulate(SimulationRequest(out=out, frames=1, size=(64, 48)))
     assert {p.name for p in out.glob(".partial-*")} == {".partial-running", ".partial-fresh"}
     assert (out / "0.png").exists() and not (out / "pid").exists()
+
+
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")
+def test_a_sigterm_whose_exception_python_swallowed_still_stops_the_run(monkeypatch):
+    """SIGTERM handled inside a finaliser the garbage collector ran: Python prints the Terminated
+    as ignored and goes on; the run's stop flag, installed later, must still find it."""
+    import threading
+
+    from antiscatter import cli, runtime
+
+    seen = threading.Event()
+    monkeypatch.setattr(cli, "SIGTERM_RECEIVED", seen)
+    monkeypatch.setattr(runtime, "SIGTERM_RECEIVED", seen)
+
+    class Finalised:
+        def __del__(self):
+            cli._terminate(signal.SIGTERM, None)
+
+    Finalised()  # the exception is lost ("Exception ignored in ..."): the test goes on
+    assert seen.is_set()
+    with runtime.StopFlag() as stop:
+        assert stop and stop.reason == "SIGTERM"
+    monkeypatch.setattr(runtime, "SIGTERM_RECEIVED", threading.Event())
+    with runtime.StopFlag() as stop:  # a process never asked to stop
+        assert not stop

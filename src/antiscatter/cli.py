@@ -15,7 +15,7 @@ import numpy as np
 
 from . import __version__
 from .console import json_text
-from .errors import RunError, Terminated, UsageError, WriteError, check_output_path
+from .errors import SIGTERM_RECEIVED, RunError, Terminated, UsageError, WriteError, check_output_path
 
 __all__ = ["main", "build_parser"]
 
@@ -1380,6 +1380,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _terminate(signum: int, frame: object) -> None:
+    SIGTERM_RECEIVED.set()
     raise Terminated
 
 

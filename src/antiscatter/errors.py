@@ -5,10 +5,11 @@ from __future__ import annotations
 import os
 import stat
 import tempfile
+import threading
 from pathlib import Path
 from typing import Iterable
 
-__all__ = ["UsageError", "RunError", "WriteError", "Terminated", "check_output_path", "check_output_folder"]
+__all__ = ["UsageError", "RunError", "WriteError", "Terminated", "SIGTERM_RECEIVED", "check_output_path", "check_output_folder"]
 
 
 class UsageError(Exception):
@@ -35,6 +36,12 @@ class WriteError(RunError):
 class Terminated(BaseException):
     """SIGTERM where no stop flag is installed: the command unwinds as on Ctrl-C (files finished,
     staging removed) and exits with 143."""
+
+
+#: set when a SIGTERM has been received: a :class:`Terminated` raised where Python swallows
+#: exceptions (a finaliser the garbage collector ran, a callback) is not lost -- a stop flag
+#: installed later finds the process already asked to stop
+SIGTERM_RECEIVED = threading.Event()
 
 
 def check_output_path(path: str | Path, flag: str, *, overwrite: bool = True,

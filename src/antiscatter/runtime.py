@@ -26,7 +26,7 @@ import numpy as np
 from .config import Config, light_ahead_reaches, parse_size
 from .detection import Detector, check_frame_size, make_detector
 from .detections import Detections
-from .errors import UsageError, check_output_path
+from .errors import SIGTERM_RECEIVED, UsageError, check_output_path
 from .writing import CsvFile
 from .levels import HoleLevels
 from .lock import FLIP_MARGIN_S
@@ -235,6 +235,8 @@ class StopFlag:
                 self._previous[signum] = signal.signal(signum, self._handle)
             except ValueError:  # not the main thread
                 pass
+        if SIGTERM_RECEIVED.is_set():  # asked to stop before, where the exception was swallowed
+            self.reason = self.reason or "SIGTERM"
         return self
 
     def __exit__(self, *exc: object) -> None:
