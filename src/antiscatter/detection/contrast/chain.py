@@ -16,7 +16,7 @@ from ...detections import Detections
 from .. import Detector, Pooled, Stage
 from .bands import BandPool, downsample_in_bands
 from .background import NOISE_WINDOW, _near, _rings, prominent_only, threshold_mask
-from .components import brightest, label, measure_in_bands
+from .components import brightest, label, measure
 from .kernels import _disc
 from .model import BackgroundModel
 from .params import ContrastParams
@@ -80,7 +80,6 @@ def build_contrast(params: ContrastParams, *, threads: int = 1) -> Detector:
     measured on in bands of labels beside the coarse scale (:class:`~.bands.BandPool`; default 1);
     the detections and what the model learns are the same on any number."""
     pool = BandPool(threads)
-    serial = BandPool(1)
     model = BackgroundModel(cell=params.cell, memory=params.memory, k=params.k, min_contrast=params.min_contrast,
                             follow=params.follow, defer_looks=True, pool=pool if threads > 1 else None)
     state = ChainState()
@@ -177,25 +176,18 @@ def build_contrast(params: ContrastParams, *, threads: int = 1) -> Detector:
         if seen is not None and seen.shape != mask.shape:
             seen = None
 
-        def fine() -> Detections:  # in bands of components with threads > 1 (measure itself with one)
-            return measure_in_bands(components, excess, model.noise, serial, halo=params.halo, core=params.core,
-                                    max_radius=params.max_radius, split=params.split, frame_width=state.width,
-                                    factor=state.factor, lone_k=params.lone_k, seen=seen,
-                                    full=None if state.grey is None else (state.grey, state.base), fine=state.frozen is None,
-                                    split_budget=int(SPLIT_BUDGET * mask.size))
-
+        # measured on this thread: in bands the measuring's many small numpy calls took turns at
+        # the GIL (docs/decisions/008-threads.md)
+        found = measure(components, excess, model.noise, halo=params.halo, core=params.core,
+                        max_radius=params.max_radius, split=params.split, frame_width=state.width,
+                        factor=state.factor, lone_k=params.lone_k, seen=seen,
+                        full=None if state.grey is None else (state.grey, state.base), fine=state.frozen is None,
+                        split_budget=int(SPLIT_BUDGET * mask.size))
         if params.coarse and state.frozen is None:
             still = model.learnt() and not model.moving() and model.base is not None
-            learnt = model.base if still else None
-
-            def coarse() -> Detections:
-                return coarse_particles(reflectance, learnt, factor=state.factor, width=state.width, k=params.k,
-                                        min_contrast=params.min_contrast, core=params.core, halo=params.halo,
-                                        max_radius=params.max_radius)
-
-            found = merge_scales(fine(), coarse())
-        else:
-            found = fine()
+            found = merge_scales(found, coarse_particles(
+                reflectance, model.base if still else None, factor=state.factor, width=state.width, k=params.k,
+                min_contrast=params.min_contrast, core=params.core, halo=params.halo, max_radius=params.max_radius))
         state.learn = (reflectance, mask, state.frozen)
         return brightest(found, params.max_particles)
 
